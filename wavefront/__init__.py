@@ -1,0 +1,19 @@
+"""wavefront: a readable, tested NumPy wavefront path tracer for spheres.
+
+>>> from wavefront import load_scene, render
+>>> image = render(load_scene("scenes/three_spheres.yaml"))  # (H, W, 3) linear float32
+"""
+
+from .background import Sky, Solid
+from .camera import Camera
+from .geometry import Sphere
+from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
+from .render import RenderResult, render, render_scene
+from .scene import PointLight, RenderSettings, Scene
+from .scenefile import SceneError, SceneWarning, load_scene, scene_from_dict
+
+__all__ = [
+    "Camera", "Dielectric", "Emissive", "Lambertian", "Metal", "Phong", "PointLight",
+    "RenderResult", "RenderSettings", "Scene", "SceneError", "SceneWarning", "Sky", "Solid",
+    "Sphere", "load_scene", "render", "render_scene", "scene_from_dict",
+]

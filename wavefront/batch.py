@@ -1,0 +1,39 @@
+"""The structure-of-arrays record of paths in flight."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+
+@dataclass(slots=True)
+class PathBatch:
+    """Live paths of a wavefront, one column (or element) per path.
+
+    ``slot`` says where the path's radiance goes in the job's per-sample
+    buffer, ``state`` is its random-number hash state (see
+    :mod:`wavefront.sampling`) and ``depth`` counts the segments traced so
+    far; paths of different depths share a batch once it has been refilled.
+    """
+
+    origin: np.ndarray  # (3, N) float64
+    direction: np.ndarray  # (3, N) float64, unit
+    throughput: np.ndarray  # (3, N) float64
+    slot: np.ndarray  # (N,) int64
+    state: np.ndarray  # (N,) uint64
+    depth: np.ndarray  # (N,) int32
+
+    def __len__(self) -> int:
+        return self.slot.shape[0]
+
+    def take(self, idx: np.ndarray) -> PathBatch:
+        """The paths at ``idx`` (indices or a mask), every field compacted alike."""
+        return PathBatch(*(getattr(self, f.name)[..., idx] for f in fields(self)))
+
+    @staticmethod
+    def concat(a: PathBatch, b: PathBatch) -> PathBatch:
+        if len(a) == 0:
+            return b
+        return PathBatch(*(np.concatenate((getattr(a, f.name), getattr(b, f.name)), axis=-1)
+                           for f in fields(a)))

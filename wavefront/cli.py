@@ -1,0 +1,150 @@
+"""Command line: ``wavefront render SCENE -o OUT [options]``.
+
+Bad input (a malformed scene, a bad flag, an unwritable output) is reported
+as one line naming the file and what is wrong, with exit status 2, no
+traceback, and no output file written or clobbered.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import warnings
+
+EXIT_BAD_INPUT = 2
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if not 0 <= value < 2**63:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^63), got {text!r}")
+    return value
+
+
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kmgt]?i?b?)?\s*$", re.IGNORECASE)
+
+
+def _memory(text: str) -> int:
+    """Sizes like ``512M``, ``2GiB``, ``1.5g`` or plain bytes."""
+    m = _SIZE.match(text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"expected a size such as 512M or 2G, got {text!r}")
+    scale = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[(m.group(2) or "")[:1].lower()]
+    value = int(float(m.group(1)) * scale)
+    if value < 64 << 20:
+        raise argparse.ArgumentTypeError(f"at least 64M is needed, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="wavefront", description="A NumPy wavefront path tracer.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("render", help="render a YAML scene to PNG, EXR or NPY")
+    r.add_argument("scene", help="YAML scene file")
+    r.add_argument("-o", "--output", required=True, help="output image: .png (sRGB), .exr or .npy (linear)")
+    r.add_argument("--width", type=_positive_int, help="image width (alone: keeps the aspect ratio)")
+    r.add_argument("--height", type=_positive_int, help="image height (alone: keeps the aspect ratio)")
+    r.add_argument("--spp", type=_positive_int, help="samples per pixel")
+    r.add_argument("--max-depth", type=_positive_int, help="path segments (path) or recursion depth (whitted)")
+    r.add_argument("--seed", type=_seed, help="random seed; the same seed gives the same image")
+    r.add_argument("--workers", type=_positive_int, help="processes (default: all cores); the image does not change")
+    r.add_argument("--memory", type=_memory, help="memory budget for the render, e.g. 512M (default 1G)")
+    r.add_argument("--chunk-size", type=_positive_int, help="paths in flight per worker (default: from --memory)")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    return parser
+
+
+def _warn_line(message, category, filename, lineno, file=None, line=None):
+    print(f"wavefront: warning: {message}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    warnings.showwarning = _warn_line
+    try:
+        return _render(args)
+    except KeyboardInterrupt:
+        print("wavefront: interrupted", file=sys.stderr)
+        return 130
+
+
+def _render(args) -> int:
+    from .output import OutputError, check_output_path, write_image
+    from .render import DEFAULT_MEMORY, render_scene
+    from .scenefile import SceneError, load_scene
+
+    try:
+        check_output_path(args.output)
+        scene = load_scene(args.scene)
+    except (SceneError, OutputError) as e:
+        print(f"wavefront: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    scene = scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
+                                 max_depth=args.max_depth, seed=args.seed)
+
+    bar = None
+    if not args.quiet and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=scene.width * scene.height * scene.render.samples_per_pixel,
+                   unit="samples", unit_scale=True, file=sys.stderr, leave=False)
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.update(done - bar.n)
+
+    try:
+        result = render_scene(scene, workers=args.workers, memory=args.memory or DEFAULT_MEMORY,
+                              chunk_size=args.chunk_size, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    s = result.stats
+    metadata = {"Software": "wavefront", "wavefront.scene": scene.name, "wavefront.seed": s.seed,
+                "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
+                "wavefront.partial": "yes" if s.partial else "no"}
+    try:
+        write_image(args.output, result.image, metadata)
+    except OSError as e:
+        print(f"wavefront: error: {args.output}: cannot write: {e.strerror or e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if not args.quiet:
+        print(summary_line(scene, s, args.output), file=sys.stderr)
+    return 0
+
+
+def summary_line(scene, s, output: str) -> str:
+    rate = lambda n: n / s.elapsed if s.elapsed > 0 else float("inf")  # noqa: E731
+    parts = [
+        f"{output}: {scene.width}x{scene.height}, {scene.render.samples_per_pixel} spp",
+        f"{s.elapsed:.2f} s",
+        f"{rate(s.samples) / 1e6:.2f} M samples/s",
+        f"{rate(s.segments) / 1e6:.2f} M path segments/s",
+        f"peak memory {s.peak_memory / 2**20:.0f} MiB",
+        f"seed {s.seed}",
+        f"{s.workers} worker{'s' if s.workers != 1 else ''}",
+    ]
+    if s.dropped:
+        parts.append(f"{s.dropped} non-finite samples dropped")
+    if s.partial:
+        parts.append(f"PARTIAL ({s.units_done}/{s.units_total} units)")
+    return ", ".join(parts)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,237 @@
+"""Materials: their parameters, and one vectorised scatter kernel per kind.
+
+A material answers the book's three questions at once for a whole batch of
+hits: did the ray scatter (``absorbed`` is the negation), how much is it
+attenuated, and where does it go next.  A kernel receives its uniforms ``u``
+as an argument (shape ``(2, N)`` or ``(3, N)``), holds no state and branches
+only with masks, so the integrator can route any subset of rows to it.
+
+Kernel signature::
+
+    attenuation (3, N), direction (3, N), absorbed (N,) = kernel(
+        direction_in (3, N) unit, normal (3, N) unit against the ray,
+        front_face (N,), <the material's parameters gathered per row>, u)
+
+Outgoing directions are unit length so intersection can assume ``|d| = 1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from .sampling import random_unit_vector
+from .vecmath import dot, normalize, reflect, refract, schlick
+
+# A lambertian scatter direction n + random_unit_vector() vanishes when the
+# random vector is nearly -n; below this squared length fall back to n (the
+# book's near_zero() uses 1e-8 per component).
+DEGENERATE_SQUARED_LENGTH = 1e-16
+
+RGB = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Lambertian:
+    """Ideal diffuse reflector.
+
+    ============  =========  =====================================
+    parameter     default    meaning
+    ============  =========  =====================================
+    ``albedo``    (.5,.5,.5) fraction of light reflected, per channel
+    ============  =========  =====================================
+    """
+
+    albedo: RGB = (0.5, 0.5, 0.5)
+    kind: ClassVar[str] = "lambertian"
+
+
+@dataclass(frozen=True)
+class Metal:
+    """Mirror with an albedo tint; ``fuzz`` in [0, 1] roughens it.
+
+    ============  =========  =====================================
+    parameter     default    meaning
+    ============  =========  =====================================
+    ``albedo``    (.8,.8,.8) tint of the reflection, per channel
+    ``fuzz``      0          radius of the ball the reflected
+                             direction is jittered in; clamped to 1
+    ============  =========  =====================================
+    """
+
+    albedo: RGB = (0.8, 0.8, 0.8)
+    fuzz: float = 0.0
+    kind: ClassVar[str] = "metal"
+
+    def __post_init__(self):
+        # The lesson clamps fuzz to at most 1: beyond that the jitter ball
+        # contains the origin and the lobe is no longer centred on the mirror
+        # direction.  The scene loader warns when it clamps.
+        object.__setattr__(self, "fuzz", min(float(self.fuzz), 1.0))
+
+
+@dataclass(frozen=True)
+class Dielectric:
+    """Clear glass-like material: Snell refraction, TIR, Schlick Fresnel.
+
+    ======================  =======  =========================================
+    parameter               default  meaning
+    ======================  =======  =========================================
+    ``refraction_index``    1.5      index relative to the medium outside the
+                                     sphere (use 1/1.5 for an air bubble
+                                     inside glass)
+    ======================  =======  =========================================
+    """
+
+    refraction_index: float = 1.5
+    kind: ClassVar[str] = "dielectric"
+
+
+@dataclass(frozen=True)
+class Emissive:
+    """A light: adds ``color`` times the path throughput and ends the path.
+
+    ===========  =======  ====================================
+    parameter    default  meaning
+    ===========  =======  ====================================
+    ``color``    (1,1,1)  emitted radiance (may exceed 1)
+    ===========  =======  ====================================
+    """
+
+    color: RGB = (1.0, 1.0, 1.0)
+    kind: ClassVar[str] = "emissive"
+
+
+@dataclass(frozen=True)
+class Phong:
+    """Whitted/Phong material for the ``whitted`` integrator.
+
+    ================  ==========  ==========================================
+    parameter         default     meaning
+    ================  ==========  ==========================================
+    ``ambient``       (0,0,0)     k_a, multiplies the scene's ambient light
+    ``diffuse``       (.5,.5,.5)  k_d, Lambert term per point light
+    ``specular``      (0,0,0)     k_s, Phong highlight per point light
+    ``shininess``     32          Phong exponent (>= 0)
+    ``reflectivity``  (0,0,0)     k_r, weight of the mirror-reflected colour
+    ================  ==========  ==========================================
+
+    The path integrator treats it as lambertian with albedo ``diffuse``.
+    """
+
+    ambient: RGB = (0.0, 0.0, 0.0)
+    diffuse: RGB = (0.5, 0.5, 0.5)
+    specular: RGB = (0.0, 0.0, 0.0)
+    shininess: float = 32.0
+    reflectivity: RGB = (0.0, 0.0, 0.0)
+    kind: ClassVar[str] = "phong"
+
+
+Material = Lambertian | Metal | Dielectric | Emissive | Phong
+MATERIAL_TYPES: dict[str, type] = {
+    cls.kind: cls for cls in (Lambertian, Metal, Dielectric, Emissive, Phong)
+}
+KINDS = tuple(MATERIAL_TYPES)  # kind code = position in this tuple
+
+
+@dataclass(slots=True)
+class MaterialTable:
+    """The scene's materials as parallel arrays indexed by material id.
+
+    Kernels gather their parameters with ``table.albedo[:, material_idx]``;
+    a field a kind does not use holds a harmless placeholder.
+    """
+
+    kind: np.ndarray  # (K,) int8, index into KINDS
+    albedo: np.ndarray  # (3, K) lambertian / metal / phong-diffuse
+    fuzz: np.ndarray  # (K,)
+    refraction_index: np.ndarray  # (K,)
+    emission: np.ndarray  # (3, K)
+    ambient: np.ndarray  # (3, K)
+    specular: np.ndarray  # (3, K)
+    shininess: np.ndarray  # (K,)
+    reflectivity: np.ndarray  # (3, K)
+    names: list[str] = field(default_factory=list)
+
+    @classmethod
+    def build(cls, materials: list[Material], names: list[str] | None = None) -> MaterialTable:
+        k = len(materials)
+        t = cls(
+            kind=np.array([KINDS.index(m.kind) for m in materials], dtype=np.int8),
+            albedo=np.zeros((3, k)),
+            fuzz=np.zeros(k),
+            refraction_index=np.ones(k),
+            emission=np.zeros((3, k)),
+            ambient=np.zeros((3, k)),
+            specular=np.zeros((3, k)),
+            shininess=np.zeros(k),
+            reflectivity=np.zeros((3, k)),
+            names=list(names or [f"material{i}" for i in range(k)]),
+        )
+        for i, m in enumerate(materials):
+            if isinstance(m, (Lambertian, Metal)):
+                t.albedo[:, i] = m.albedo
+            if isinstance(m, Metal):
+                t.fuzz[i] = m.fuzz
+                t.reflectivity[:, i] = m.albedo  # Whitted: a metal is a tinted mirror
+            elif isinstance(m, Dielectric):
+                t.refraction_index[i] = m.refraction_index
+            elif isinstance(m, Emissive):
+                t.emission[:, i] = m.color
+            elif isinstance(m, Phong):
+                t.albedo[:, i] = m.diffuse
+                t.ambient[:, i] = m.ambient
+                t.specular[:, i] = m.specular
+                t.shininess[i] = m.shininess
+                t.reflectivity[:, i] = m.reflectivity
+        return t
+
+    def code(self, kind: str) -> int:
+        return KINDS.index(kind)
+
+
+def scatter_lambertian(direction, normal, front_face, albedo, u):
+    """Cosine-weighted diffuse bounce: ``n + random_unit_vector()``.
+
+    A unit normal plus a uniform point on the unit sphere is distributed with
+    density ``cos(theta) / pi`` over the hemisphere (RTIOW 1, "True Lambertian
+    Reflection"), so the attenuation is just the albedo.  Never absorbs.
+    """
+    scattered = normal + random_unit_vector(u[0], u[1])
+    degenerate = dot(scattered, scattered) < DEGENERATE_SQUARED_LENGTH
+    scattered = np.where(degenerate, normal, scattered)
+    absorbed = np.zeros(direction.shape[1], dtype=bool)
+    return albedo, normalize(scattered), absorbed
+
+
+def scatter_metal(direction, normal, front_face, albedo, fuzz, u):
+    """Mirror reflection jittered by ``fuzz * random_unit_vector()``.
+
+    Rows whose scattered direction does not point above the surface
+    (``d.n <= 0``) are absorbed, as in the lesson.
+    """
+    reflected = normalize(reflect(direction, normal))
+    scattered = reflected + fuzz * random_unit_vector(u[0], u[1])
+    absorbed = dot(scattered, normal) <= 0.0
+    return albedo, normalize(scattered), absorbed
+
+
+def scatter_dielectric(direction, normal, front_face, refraction_index, u):
+    """Reflect with probability Schlick(cos, ratio), else refract (Snell).
+
+    ``ratio`` is 1/index entering through the front face and index leaving;
+    where ``ratio * sin(theta) > 1`` there is no refracted ray (total internal
+    reflection).  Glass absorbs nothing: attenuation is 1.
+    """
+    ratio = np.where(front_face, 1.0 / refraction_index, refraction_index)
+    cos_theta = np.minimum(-dot(direction, normal), 1.0)
+    sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
+    total_internal = ratio * sin_theta > 1.0
+    mirror = total_internal | (schlick(cos_theta, ratio) > u[0])
+    scattered = np.where(
+        mirror, reflect(direction, normal), refract(direction, normal, ratio)
+    )
+    n = direction.shape[1]
+    return np.ones((3, n)), normalize(scattered), np.zeros(n, dtype=bool)

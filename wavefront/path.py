@@ -1,0 +1,175 @@
+"""The wavefront path integrator (backward path tracing, RTIOW books 1-2).
+
+One call to :func:`trace_paths` runs a job's samples through a fixed-capacity
+wavefront.  Each iteration is a list of named stages over *all* live paths:
+
+1. **refill** free slots with camera rays of new samples (so a long tail of a
+   few deep paths never costs a near-empty NumPy call per bounce);
+2. **intersect** every path with every sphere;
+3. **escaped** paths add ``throughput * background`` and end;
+4. **emitted**: paths that hit an emissive sphere add ``throughput * color``
+   and end;
+5. **scatter**: hits are routed by material kind, one kernel per kind
+   present, and throughput is multiplied by the attenuation; absorbed paths
+   end, and so do paths that have reached ``max_depth`` segments;
+6. **compact** the survivors.
+
+A path ends in one of the book's three ways: it hits a light, escapes to the
+background, or reaches the depth limit (contributing nothing more).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .batch import PathBatch
+from .film import Job
+from .materials import scatter_dielectric, scatter_lambertian, scatter_metal
+from .sampling import bounce_dimension, path_state, uniform, uniform_at
+from .scene import CompiledScene
+
+REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
+
+
+@dataclass
+class TraceStats:
+    segments: int = 0  # rays traced (camera rays + scattered rays)
+    samples: int = 0
+
+    def add(self, other: TraceStats) -> None:
+        self.segments += other.segments
+        self.samples += other.samples
+
+
+def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int) -> PathBatch:
+    """Stage 1: new paths for the job's slots ``start:stop``."""
+    pixel, sample_id = job.samples(start, stop)
+    state = path_state(key, sample_id)
+    u = np.stack([uniform(state, d) for d in range(4)])
+    origin, direction = frame.generate_rays(pixel, u)
+    n = stop - start
+    return PathBatch(
+        origin=origin,
+        direction=direction,
+        throughput=np.ones((3, n)),
+        slot=np.arange(start, stop, dtype=np.int64),
+        state=state,
+        depth=np.zeros(n, dtype=np.int32),
+    )
+
+
+def _lambertian(table, m, d, n, front_face, u):
+    return scatter_lambertian(d, n, front_face, table.albedo[:, m], u)
+
+
+def _metal(table, m, d, n, front_face, u):
+    return scatter_metal(d, n, front_face, table.albedo[:, m], table.fuzz[m], u)
+
+
+def _dielectric(table, m, d, n, front_face, u):
+    return scatter_dielectric(d, n, front_face, table.refraction_index[m], u)
+
+
+# Which material kinds each scatter kernel serves.  Phong surfaces are
+# lambertian with albedo = diffuse under the path integrator.
+_KERNELS = ((("lambertian", "phong"), _lambertian), (("metal",), _metal), (("dielectric",), _dielectric))
+
+
+def kernels_present(table):
+    """(kind codes, kernel) for the kinds present in the scene only."""
+    present = set(np.unique(table.kind).tolist())
+    out = []
+    for kinds, kernel in _KERNELS:
+        codes = tuple(c for c in (table.code(k) for k in kinds) if c in present)
+        if codes:
+            out.append((np.array(codes, dtype=np.int8), kernel))
+    return out
+
+
+def _uniforms(batch: PathBatch, idx: np.ndarray, count: int) -> np.ndarray:
+    """``count`` uniforms per path for its current bounce; shape (count, n)."""
+    state = batch.state[idx]
+    depth = batch.depth[idx]
+    return np.stack([uniform_at(state, bounce_dimension(depth, k)) for k in range(count)])
+
+
+def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None) -> np.ndarray:
+    """Radiance of every sample of ``job``; shape ``(3, job.size)``."""
+    scene = cs.scene
+    frame = scene.camera.frame(scene.width, scene.height)
+    max_depth = scene.render.depth
+    table = cs.materials
+    kernels = kernels_present(table)
+    code = table.code
+    radiance = np.zeros((3, job.size))
+    stats = stats if stats is not None else TraceStats()
+    stats.samples += job.size
+
+    next_slot = 0
+    live = camera_paths(cs, frame, key, job, 0, 0)
+    while True:
+        # 1. refill
+        free = capacity - len(live)
+        if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
+            stop = min(job.size, next_slot + free)
+            live = PathBatch.concat(live, camera_paths(cs, frame, key, job, next_slot, stop))
+            next_slot = stop
+        if len(live) == 0:
+            break
+        n = len(live)
+        stats.segments += n
+
+        # 2. intersect
+        hits = cs.spheres.intersect(live.origin, live.direction)
+        hit = hits.sphere_idx >= 0
+        alive = hit.copy()
+
+        # 3. escaped
+        esc_idx = np.flatnonzero(~hit)
+        if esc_idx.size:
+            radiance[:, live.slot[esc_idx]] += (
+                live.throughput[:, esc_idx] * scene.background.radiance(live.direction[:, esc_idx])
+            )
+
+        hit_idx = np.flatnonzero(hit)
+        if hit_idx.size:
+            point, normal, front_face, sphere = cs.spheres.surface(live.origin, live.direction, hits, hit_idx)
+            material = cs.spheres.material_idx[sphere]
+            kind = table.kind[material]
+            direction_in = live.direction[:, hit_idx]
+            new_direction = np.empty_like(direction_in)
+            attenuation = np.ones_like(direction_in)
+            absorbed = np.zeros(hit_idx.size, dtype=bool)
+
+            # 4. emitted
+            sel = np.flatnonzero(kind == code("emissive"))
+            if sel.size:
+                rows = hit_idx[sel]
+                radiance[:, live.slot[rows]] += live.throughput[:, rows] * table.emission[:, material[sel]]
+                absorbed[sel] = True
+
+            # 5. scatter, one kernel per kind present
+            for kind_codes, kernel in kernels:
+                sel = np.flatnonzero(np.isin(kind, kind_codes) if len(kind_codes) > 1 else kind == kind_codes[0])
+                if sel.size == 0:
+                    continue
+                m = material[sel]
+                att, d, dead = kernel(table, m, direction_in[:, sel], normal[:, sel], front_face[sel],
+                                      _uniforms(live, hit_idx[sel], 2))
+                attenuation[:, sel] = att
+                new_direction[:, sel] = d
+                absorbed[sel] = dead
+
+            live.origin[:, hit_idx] = point
+            live.direction[:, hit_idx] = new_direction
+            live.throughput[:, hit_idx] *= attenuation
+            alive[hit_idx] = ~absorbed
+
+        # 6. compact: a path that has used max_depth segments contributes nothing more
+        live.depth += 1
+        alive &= live.depth < max_depth
+        if not alive.all():
+            live = live.take(np.flatnonzero(alive))
+    return radiance

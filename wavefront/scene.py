@@ -1,0 +1,158 @@
+"""The scene: what is rendered and how, as plain objects.
+
+A ``Scene`` is what :func:`wavefront.load_scene` returns and what
+:func:`wavefront.render` consumes; building one in Python gives exactly the
+objects a YAML file would::
+
+    from wavefront import Scene, Sphere, Lambertian, Camera, render
+    scene = Scene(
+        spheres=[Sphere((0, 0, -1), 0.5, "ball"), Sphere((0, -100.5, -1), 100, "ball")],
+        materials={"ball": Lambertian((0.5, 0.5, 0.5))},
+        camera=Camera(look_from=(0, 0, 0), look_at=(0, 0, -1)),
+    )
+    image = render(scene)          # (height, width, 3) linear float32
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .background import Background, Sky
+from .camera import Camera
+from .geometry import Sphere, SphereSet
+from .materials import Material, MaterialTable
+
+RGB = tuple[float, float, float]
+
+INTEGRATORS = ("path", "whitted")
+DEFAULT_MAX_DEPTH = {"path": 50, "whitted": 3}
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """A point light for the ``whitted`` integrator (ignored by ``path``).
+
+    ============  =========  ==================================
+    parameter     default    meaning
+    ============  =========  ==================================
+    ``position``  required   where the light is
+    ``color``     (1, 1, 1)  its intensity, per channel
+    ============  =========  ==================================
+    """
+
+    position: tuple[float, float, float]
+    color: RGB = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How to render.
+
+    =====================  ========  ===========================================
+    parameter              default   meaning
+    =====================  ========  ===========================================
+    ``samples_per_pixel``  100       jittered samples averaged per pixel
+    ``max_depth``          50 / 3    path segments per sample (``path``) or
+                                     recursion depth (``whitted``)
+    ``seed``               0         the only source of randomness
+    ``integrator``         path      ``path`` or ``whitted``
+    =====================  ========  ===========================================
+    """
+
+    samples_per_pixel: int = 100
+    max_depth: int | None = None
+    seed: int = 0
+    integrator: str = "path"
+
+    @property
+    def depth(self) -> int:
+        return self.max_depth if self.max_depth is not None else DEFAULT_MAX_DEPTH[self.integrator]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A complete scene.
+
+    ==============  ===================  =======================================
+    field           default              meaning
+    ==============  ===================  =======================================
+    ``spheres``     required             list of :class:`Sphere`
+    ``materials``   required             name -> material
+    ``camera``      ``Camera()``         see :class:`wavefront.camera.Camera`
+    ``width``       400                  image width in pixels
+    ``height``      225                  image height in pixels
+    ``render``      ``RenderSettings()``
+    ``background``  ``Sky()``            what escaped rays see
+    ``lights``      ()                   point lights (``whitted`` only)
+    ``ambient``     (0, 0, 0)            ambient light (``whitted`` only)
+    ``name``        "scene"              stored in the output's metadata
+    ==============  ===================  =======================================
+    """
+
+    spheres: list[Sphere]
+    materials: dict[str, Material]
+    camera: Camera = field(default_factory=Camera)
+    width: int = 400
+    height: int = 225
+    render: RenderSettings = field(default_factory=RenderSettings)
+    background: Background = field(default_factory=Sky)
+    lights: tuple[PointLight, ...] = ()
+    ambient: RGB = (0.0, 0.0, 0.0)
+    name: str = "scene"
+
+    def replace(self, **changes) -> Scene:
+        return dataclasses.replace(self, **changes)
+
+    def with_overrides(self, *, width=None, height=None, samples_per_pixel=None,
+                       max_depth=None, seed=None) -> Scene:
+        """Command-line style overrides; ``width`` alone keeps the aspect ratio."""
+        w, h = self.width, self.height
+        if width is not None and height is None:
+            h = max(1, round(width * self.height / self.width))
+        if height is not None and width is None:
+            w = max(1, round(height * self.width / self.height))
+        w = width if width is not None else w
+        h = height if height is not None else h
+        settings = {}
+        for key, value in (("samples_per_pixel", samples_per_pixel),
+                           ("max_depth", max_depth), ("seed", seed)):
+            if value is not None:
+                settings[key] = value
+        return self.replace(width=w, height=h, render=dataclasses.replace(self.render, **settings))
+
+    def compile(self) -> CompiledScene:
+        return CompiledScene.build(self)
+
+
+@dataclass
+class CompiledScene:
+    """The scene as arrays for the kernels; built once per render."""
+
+    scene: Scene
+    spheres: SphereSet
+    materials: MaterialTable
+    light_position: np.ndarray  # (3, L)
+    light_color: np.ndarray  # (3, L)
+
+    @classmethod
+    def build(cls, scene: Scene) -> CompiledScene:
+        from .accel import build_intersector
+
+        names = list(scene.materials)
+        index = {name: i for i, name in enumerate(names)}
+        table = MaterialTable.build([scene.materials[n] for n in names], names)
+        m = len(scene.spheres)
+        center = np.array([s.center for s in scene.spheres], dtype=np.float64).reshape(m, 3).T
+        radius = np.array([s.radius for s in scene.spheres], dtype=np.float64)
+        material_idx = np.array(
+            [s.material if isinstance(s.material, int) else index[s.material] for s in scene.spheres],
+            dtype=np.int32,
+        )
+        spheres = build_intersector(SphereSet(center, radius, material_idx))
+        nl = len(scene.lights)
+        light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
+        light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
+        return cls(scene, spheres, table, light_position, light_color)

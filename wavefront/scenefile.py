@@ -1,0 +1,378 @@
+"""Reading scene files: YAML in, a validated :class:`~wavefront.scene.Scene` out.
+
+Every problem is reported as one :class:`SceneError` naming the file, the YAML
+path of the offending value (``spheres[3].material``) and what is wrong.  The
+YAML is read with a safe loader, duplicate keys are errors rather than silently
+overwritten, and the document's size, nesting and alias expansion are bounded
+so a hostile file cannot exhaust memory.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from typing import Any
+
+import yaml
+
+from .background import Sky, Solid
+from .camera import Camera
+from .geometry import Sphere
+from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
+from .scene import INTEGRATORS, PointLight, RenderSettings, Scene
+
+MAX_FILE_BYTES = 16 * 1024 * 1024  # a scene of a million spheres is ~60 MB; refuse more than a sane hand/script file
+MAX_NODES = 2_000_000  # YAML nodes after alias expansion ("billion laughs" guard)
+MAX_NESTING = 64  # no valid scene nests deeper than ~4
+MAX_PIXELS = 1 << 28  # 268 M pixels: the float32 film alone would need 3 GiB
+MAX_SAMPLES_PER_PIXEL = 1 << 24
+MAX_DEPTH = 10_000
+MAX_SEED = 2**63 - 1
+
+
+class SceneError(ValueError):
+    """A scene file or value is malformed.
+
+    ``str(error)`` is the whole user-facing message:
+    ``file: yaml.path: problem``.
+    """
+
+    def __init__(self, source: str, path: str, problem: str):
+        self.source, self.path, self.problem = source, path, problem
+        where = f"{source}: {path}" if path else source
+        super().__init__(f"{where}: {problem}")
+
+
+class SceneWarning(UserWarning):
+    """Something in a scene was accepted but changed or ignored."""
+
+
+# ---------------------------------------------------------------------------
+# YAML reading
+
+class _Loader(yaml.SafeLoader):
+    """Safe loader; mappings are checked for duplicate keys in ``_check_tree``."""
+
+
+def _check_tree(node: yaml.Node, source: str) -> None:
+    """Reject duplicate keys, deep nesting and alias bombs before constructing.
+
+    Expanded size is counted with memoisation on shared (aliased) nodes, so a
+    bomb is measured in linear time without ever being expanded.
+    """
+    sizes: dict[int, int] = {}
+
+    def walk(n: yaml.Node, path: str, depth: int) -> int:
+        if depth > MAX_NESTING:
+            raise SceneError(source, path, f"nested more than {MAX_NESTING} levels deep")
+        key = id(n)
+        if key in sizes:
+            return sizes[key]
+        sizes[key] = 1  # guards against recursive aliases
+        total = 1
+        if isinstance(n, yaml.MappingNode):
+            seen = set()
+            for k, v in n.value:
+                name = k.value if isinstance(k, yaml.ScalarNode) else "?"
+                if isinstance(k, yaml.ScalarNode):
+                    if k.value in seen:
+                        raise SceneError(source, _join(path, name), "duplicate key")
+                    seen.add(k.value)
+                total += walk(k, path, depth + 1) + walk(v, _join(path, name), depth + 1)
+                if total > MAX_NODES:
+                    break
+        elif isinstance(n, yaml.SequenceNode):
+            for i, v in enumerate(n.value):
+                total += walk(v, f"{path}[{i}]", depth + 1)
+                if total > MAX_NODES:
+                    break
+        if total > MAX_NODES:
+            raise SceneError(source, path, f"document expands to more than {MAX_NODES} values (alias bomb?)")
+        sizes[key] = total
+        return total
+
+    walk(node, "", 0)
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else str(key)
+
+
+def read_yaml(data: bytes, source: str) -> Any:
+    """Parse YAML bytes safely, raising :class:`SceneError` on any problem."""
+    if len(data) > MAX_FILE_BYTES:
+        raise SceneError(source, "", f"file is {len(data)} bytes; the limit is {MAX_FILE_BYTES}")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(source, "", f"not UTF-8 text (byte {e.start}: {data[e.start:e.start + 1]!r})") from None
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            raise SceneError(source, "", "the file is empty")
+        _check_tree(node, source)
+        return loader.construct_document(node)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise SceneError(source, "", f"invalid YAML{where}: {problem}") from None
+    except RecursionError:
+        raise SceneError(source, "", "YAML nested too deeply") from None
+    finally:
+        loader.dispose()
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a YAML scene file.
+
+    Raises
+    ------
+    SceneError
+        Naming the file, the YAML path and the problem.
+    """
+    source = os.fspath(path)
+    try:
+        with open(source, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+    except OSError as e:
+        raise SceneError(source, "", f"cannot read: {e.strerror or e}") from None
+    doc = read_yaml(data, source)
+    name = os.path.splitext(os.path.basename(source))[0]
+    return scene_from_dict(doc, source=source, default_name=name)
+
+
+# ---------------------------------------------------------------------------
+# Validation helpers: each takes the value and its YAML path.
+
+class _Reader:
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, path: str, problem: str):
+        raise SceneError(self.source, path, problem)
+
+    def mapping(self, value, path: str, allowed: set[str], required: set[str] = frozenset()) -> dict:
+        if value is None:
+            value = {}
+        if not isinstance(value, dict):
+            self.fail(path, f"expected a mapping, got {_describe(value)}")
+        for key in value:
+            if not isinstance(key, str):
+                self.fail(path, f"keys must be strings, got {_describe(key)}")
+            if key not in allowed:
+                self.fail(_join(path, key), f"unknown key (expected one of: {', '.join(sorted(allowed))})")
+        for key in sorted(required):
+            if key not in value:
+                self.fail(_join(path, key), "required key is missing")
+        return value
+
+    def number(self, value, path: str, *, low=None, low_open=False, high=None, high_open=False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(path, f"expected a number, got {_describe(value)}")
+        x = float(value) if not isinstance(value, int) or abs(value) < 2**1023 else math.inf
+        if not math.isfinite(x):
+            self.fail(path, f"must be finite, got {value!r}")
+        if low is not None and (x <= low if low_open else x < low):
+            self.fail(path, f"must be {'>' if low_open else '>='} {low}, got {value!r}")
+        if high is not None and (x >= high if high_open else x > high):
+            self.fail(path, f"must be {'<' if high_open else '<='} {high}, got {value!r}")
+        return x
+
+    def integer(self, value, path: str, *, low=None, high=None) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+                value = int(value)
+            else:
+                self.fail(path, f"expected an integer, got {_describe(value)}")
+        if low is not None and value < low:
+            self.fail(path, f"must be >= {low}, got {value}")
+        if high is not None and value > high:
+            self.fail(path, f"must be <= {high}, got {value}")
+        return value
+
+    def vec3(self, value, path: str, *, low=None, high=None) -> tuple[float, float, float]:
+        if not isinstance(value, (list, tuple)) or len(value) != 3:
+            self.fail(path, f"expected a list of 3 numbers, got {_describe(value)}")
+        return tuple(self.number(v, f"{path}[{i}]", low=low, high=high) for i, v in enumerate(value))
+
+    def color(self, value, path: str, *, high=None) -> tuple[float, float, float]:
+        return self.vec3(value, path, low=0.0, high=high)
+
+    def string(self, value, path: str, choices=None) -> str:
+        if not isinstance(value, str):
+            self.fail(path, f"expected a string, got {_describe(value)}")
+        if choices is not None and value not in choices:
+            self.fail(path, f"unknown value {value!r} (expected one of: {', '.join(choices)})")
+        return value
+
+
+def _describe(value) -> str:
+    if value is None:
+        return "nothing (null)"
+    kind = {bool: "boolean", int: "integer", float: "number", str: "string",
+            list: "list", dict: "mapping"}.get(type(value), type(value).__name__)
+    if isinstance(value, (list, dict)):
+        return f"a {kind} of {len(value)} item{'s' if len(value) != 1 else ''}"
+    text = repr(value)
+    return f"{kind} {text[:40] + '...' if len(text) > 40 else text}"
+
+
+# ---------------------------------------------------------------------------
+# The schema
+
+_MATERIAL_KEYS = {
+    "lambertian": {"albedo"},
+    "metal": {"albedo", "fuzz"},
+    "dielectric": {"refraction_index"},
+    "emissive": {"color"},
+    "phong": {"ambient", "diffuse", "specular", "shininess", "reflectivity"},
+}
+
+
+def _material(r: _Reader, value, path: str):
+    spec = r.mapping(value, path, {"type"} | set().union(*_MATERIAL_KEYS.values()), {"type"})
+    kind = r.string(spec["type"], _join(path, "type"), tuple(_MATERIAL_KEYS))
+    r.mapping(spec, path, {"type"} | _MATERIAL_KEYS[kind])
+    p = lambda key: _join(path, key)  # noqa: E731
+    if kind == "lambertian":
+        return Lambertian(**({"albedo": r.color(spec["albedo"], p("albedo"))} if "albedo" in spec else {}))
+    if kind == "metal":
+        kw = {}
+        if "albedo" in spec:
+            kw["albedo"] = r.color(spec["albedo"], p("albedo"))
+        if "fuzz" in spec:
+            fuzz = r.number(spec["fuzz"], p("fuzz"), low=0.0)
+            if fuzz > 1.0:
+                warnings.warn(f"{r.source}: {p('fuzz')}: {fuzz} clamped to 1", SceneWarning, stacklevel=2)
+            kw["fuzz"] = min(fuzz, 1.0)
+        return Metal(**kw)
+    if kind == "dielectric":
+        kw = {}
+        if "refraction_index" in spec:
+            kw["refraction_index"] = r.number(spec["refraction_index"], p("refraction_index"), low=0.0, low_open=True)
+        return Dielectric(**kw)
+    if kind == "emissive":
+        return Emissive(**({"color": r.color(spec["color"], p("color"))} if "color" in spec else {}))
+    kw = {}
+    for key in ("ambient", "diffuse", "specular"):
+        if key in spec:
+            kw[key] = r.color(spec[key], p(key))
+    if "reflectivity" in spec:
+        kw["reflectivity"] = r.color(spec["reflectivity"], p("reflectivity"), high=1.0)
+    if "shininess" in spec:
+        kw["shininess"] = r.number(spec["shininess"], p("shininess"), low=0.0)
+    return Phong(**kw)
+
+
+def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "scene") -> Scene:
+    """Validate a parsed scene document and build the :class:`Scene`."""
+    r = _Reader(source)
+    top = r.mapping(doc, "", {"name", "image", "camera", "render", "background", "materials",
+                              "spheres", "lights", "ambient"}, {"spheres"})
+
+    name = r.string(top["name"], "name") if "name" in top else default_name
+
+    image = r.mapping(top.get("image"), "image", {"width", "height"})
+    width = r.integer(image.get("width", 400), "image.width", low=1)
+    height = r.integer(image.get("height", 225), "image.height", low=1)
+    if width * height > MAX_PIXELS:
+        r.fail("image", f"{width}x{height} is more than {MAX_PIXELS} pixels")
+
+    rs = r.mapping(top.get("render"), "render", {"samples_per_pixel", "max_depth", "seed", "integrator"})
+    integrator = r.string(rs.get("integrator", "path"), "render.integrator", INTEGRATORS)
+    settings = RenderSettings(
+        samples_per_pixel=r.integer(rs.get("samples_per_pixel", 100), "render.samples_per_pixel",
+                                    low=1, high=MAX_SAMPLES_PER_PIXEL),
+        max_depth=r.integer(rs["max_depth"], "render.max_depth", low=1, high=MAX_DEPTH) if "max_depth" in rs else None,
+        seed=r.integer(rs.get("seed", 0), "render.seed", low=0, high=MAX_SEED),
+        integrator=integrator,
+    )
+
+    camera = _camera(r, top.get("camera"))
+    background = _background(r, top.get("background"))
+
+    mats = r.mapping(top.get("materials"), "materials", set(top.get("materials") or {}) if isinstance(top.get("materials"), dict) else set())
+    materials = {}
+    for key, spec in mats.items():
+        materials[key] = _material(r, spec, f"materials.{key}")
+
+    spheres_doc = top["spheres"]
+    if spheres_doc is None:
+        spheres_doc = []
+    if not isinstance(spheres_doc, list):
+        r.fail("spheres", f"expected a list, got {_describe(spheres_doc)}")
+    spheres = []
+    for i, spec in enumerate(spheres_doc):
+        path = f"spheres[{i}]"
+        spec = r.mapping(spec, path, {"center", "radius", "material"}, {"center", "radius", "material"})
+        material = r.string(spec["material"], f"{path}.material")
+        if material not in materials:
+            known = ", ".join(sorted(materials)) or "none"
+            r.fail(f"{path}.material", f"unknown material {material!r} (defined: {known})")
+        spheres.append(Sphere(
+            center=r.vec3(spec["center"], f"{path}.center"),
+            radius=r.number(spec["radius"], f"{path}.radius", low=0.0, low_open=True),
+            material=material,
+        ))
+
+    lights_doc = top.get("lights") or []
+    if not isinstance(lights_doc, list):
+        r.fail("lights", f"expected a list, got {_describe(lights_doc)}")
+    lights = []
+    for i, spec in enumerate(lights_doc):
+        path = f"lights[{i}]"
+        spec = r.mapping(spec, path, {"type", "position", "color"}, {"position"})
+        r.string(spec.get("type", "point"), f"{path}.type", ("point",))
+        lights.append(PointLight(
+            position=r.vec3(spec["position"], f"{path}.position"),
+            color=r.color(spec["color"], f"{path}.color") if "color" in spec else (1.0, 1.0, 1.0),
+        ))
+    ambient = r.color(top["ambient"], "ambient") if "ambient" in top else (0.0, 0.0, 0.0)
+
+    if integrator == "path" and (lights or "ambient" in top):
+        warnings.warn(f"{source}: lights/ambient are ignored by the path integrator "
+                      "(it is lit by emissive spheres and the background)", SceneWarning, stacklevel=2)
+
+    return Scene(spheres=spheres, materials=materials, camera=camera, width=width, height=height,
+                 render=settings, background=background, lights=tuple(lights), ambient=ambient, name=name)
+
+
+def _camera(r: _Reader, value) -> Camera:
+    spec = r.mapping(value, "camera", {"look_from", "look_at", "vup", "vfov", "defocus_angle", "focus_dist"})
+    d = Camera()
+    look_from = r.vec3(spec["look_from"], "camera.look_from") if "look_from" in spec else d.look_from
+    look_at = r.vec3(spec["look_at"], "camera.look_at") if "look_at" in spec else d.look_at
+    vup = r.vec3(spec["vup"], "camera.vup") if "vup" in spec else d.vup
+    forward = [b - a for a, b in zip(look_from, look_at)]
+    if math.hypot(*forward) <= 1e-12 * max(1.0, math.hypot(*look_from)):
+        r.fail("camera.look_at", "must differ from camera.look_from")
+    cross = (vup[1] * forward[2] - vup[2] * forward[1],
+             vup[2] * forward[0] - vup[0] * forward[2],
+             vup[0] * forward[1] - vup[1] * forward[0])
+    if math.hypot(*cross) <= 1e-9 * math.hypot(*vup) * math.hypot(*forward):
+        r.fail("camera.vup", "must not be zero or parallel to the view direction (look_at - look_from)")
+    return Camera(
+        look_from=look_from,
+        look_at=look_at,
+        vup=vup,
+        vfov=r.number(spec.get("vfov", d.vfov), "camera.vfov", low=0.0, low_open=True, high=180.0, high_open=True),
+        defocus_angle=r.number(spec.get("defocus_angle", 0.0), "camera.defocus_angle", low=0.0, high=180.0, high_open=True),
+        focus_dist=r.number(spec["focus_dist"], "camera.focus_dist", low=0.0, low_open=True) if "focus_dist" in spec else None,
+    )
+
+
+def _background(r: _Reader, value):
+    spec = r.mapping(value, "background", {"type", "bottom", "top", "color"})
+    kind = r.string(spec.get("type", "sky"), "background.type", ("sky", "solid"))
+    if kind == "sky":
+        r.mapping(spec, "background", {"type", "bottom", "top"})
+        d = Sky()
+        return Sky(
+            bottom=r.color(spec["bottom"], "background.bottom") if "bottom" in spec else d.bottom,
+            top=r.color(spec["top"], "background.top") if "top" in spec else d.top,
+        )
+    r.mapping(spec, "background", {"type", "color"})
+    return Solid(color=r.color(spec["color"], "background.color") if "color" in spec else (0.0, 0.0, 0.0))
