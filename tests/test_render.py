@@ -1,0 +1,72 @@
+"""Determinism and the render driver."""
+
+import numpy as np
+import pytest
+
+from wavefront import Camera, Lambertian, Scene, Sphere, load_scene, render, render_scene
+from wavefront.film import PASS_SAMPLES, plan_units
+from wavefront.render import capacity_for
+
+from .test_furnace import SCENES
+
+
+@pytest.fixture(scope="module")
+def scene():
+    # 70x40 is not a multiple of the tile size and 20 spp is not a multiple
+    # of the pass size, so edge tiles and short passes are exercised.
+    return load_scene(SCENES / "three_spheres.yaml").with_overrides(width=70, height=40, samples_per_pixel=20)
+
+
+@pytest.fixture(scope="module")
+def reference_image(scene):
+    return render(scene, workers=1)
+
+
+def test_same_seed_same_image(scene, reference_image):
+    np.testing.assert_array_equal(render(scene, workers=1), reference_image)
+
+
+def test_different_seed_different_image(scene, reference_image):
+    assert not np.array_equal(render(scene.with_overrides(seed=2), workers=1), reference_image)
+
+
+@pytest.mark.parametrize("chunk_size", [257, 1000, 4096, 65536])
+def test_chunk_size_does_not_change_the_image(scene, reference_image, chunk_size):
+    np.testing.assert_array_equal(render(scene, workers=1, chunk_size=chunk_size), reference_image)
+
+
+def test_worker_count_does_not_change_the_image(scene, reference_image):
+    np.testing.assert_array_equal(render(scene, workers=2, chunk_size=1000), reference_image)
+
+
+def test_image_layout_and_finiteness(reference_image):
+    assert reference_image.shape == (40, 70, 3) and reference_image.dtype == np.float32
+    assert np.isfinite(reference_image).all() and reference_image.min() >= 0
+
+
+def test_row_zero_is_the_top_of_the_image():
+    """Looking at the horizon over a black ground: sky above, black below."""
+    scene = Scene(spheres=[Sphere((0, -1000, 0), 999, "black")], materials={"black": Lambertian((0, 0, 0))},
+                  camera=Camera(look_from=(0, 0, 0), look_at=(0, 0, -1)), width=20, height=20)
+    image = render(scene.with_overrides(samples_per_pixel=2), workers=1)
+    assert image[0].min() > 0.5 and image[-1].max() == 0.0
+
+
+def test_stats_count_samples_and_segments(scene):
+    result = render_scene(scene, workers=1)
+    s = result.stats
+    assert s.samples == 70 * 40 * 20
+    assert s.segments >= s.samples and not s.partial and s.dropped == 0
+
+
+def test_units_cover_every_pixel_sample_once():
+    units = plan_units(130, 70, 2 * PASS_SAMPLES + 3)
+    counts = np.zeros(130 * 70, dtype=int)
+    for u in units:
+        np.add.at(counts, u.pixel_index(130), u.samples_per_pixel)
+    assert (counts == 2 * PASS_SAMPLES + 3).all()
+
+
+def test_capacity_comes_from_the_budget_not_the_image():
+    assert capacity_for(1 << 30, 2) == capacity_for(1 << 30, 2)
+    assert capacity_for(64 << 20, 1) < capacity_for(1 << 30, 1)
