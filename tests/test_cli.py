@@ -1,0 +1,103 @@
+"""The command line, run as a user would run it."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from wavefront.output import read_png_metadata
+
+from .test_furnace import SCENES
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "wavefront", *map(str, args)],
+                          capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+SMALL = ("--width", 32, "--height", 18, "--spp", 2, "--max-depth", 5)
+
+
+@pytest.mark.parametrize("ext", ["png", "exr", "npy"])
+def test_writes_each_format_with_the_right_shape(tmp_path, ext):
+    out = tmp_path / f"img.{ext}"
+    r = run("render", SCENES / "three_spheres.yaml", "-o", out, *SMALL, "--workers", 1)
+    assert r.returncode == 0, r.stderr
+    if ext == "npy":
+        image = np.load(out)
+        assert image.shape == (18, 32, 3) and image.dtype == np.float32
+    elif ext == "exr":
+        import OpenEXR
+
+        with OpenEXR.File(str(out)) as f:
+            rgb = f.channels()["RGB"].pixels
+        assert rgb.shape == (18, 32, 3)
+    else:
+        import imageio.v3 as iio
+
+        image = iio.imread(out)
+        assert image.shape == (18, 32, 3) and image.dtype == np.uint8
+        meta = read_png_metadata(out)
+        assert meta["wavefront.seed"] == "1" and meta["wavefront.scene"] == "three_spheres"
+    assert not list(tmp_path.glob(".wavefront-*")), "temporary file left behind"
+
+
+def test_summary_line_and_formats_agree(tmp_path):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "a.npy", *SMALL, "--seed", 9)
+    assert r.returncode == 0, r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    for needle in (" s,", "samples/s", "path segments/s", "peak memory", "seed 9"):
+        assert needle in line, line
+    png = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "a.png", *SMALL, "--seed", 9, "-q")
+    assert png.returncode == 0 and png.stderr == ""
+    import imageio.v3 as iio
+
+    from wavefront.output import encode_srgb8
+
+    np.testing.assert_array_equal(iio.imread(tmp_path / "a.png"), encode_srgb8(np.load(tmp_path / "a.npy")))
+
+
+def test_width_alone_keeps_the_aspect_ratio(tmp_path):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "w.npy", "--width", 80, "--spp", 1, "-q")
+    assert r.returncode == 0, r.stderr
+    assert np.load(tmp_path / "w.npy").shape == (45, 80, 3)
+
+
+def bad_scene(tmp_path, text):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("spheres:\n  - {center: [0,0,0], radius: 1, material: nope}\n", "spheres[0].material"),
+    ("spheres: [\n", "invalid YAML"),
+    ("image: {width: -3}\nspheres: []\n", "image.width"),
+])
+def test_bad_scene_exits_2_with_one_message_and_no_output(tmp_path, text, needle):
+    out = tmp_path / "out.png"
+    out.write_bytes(b"precious")  # must not be clobbered
+    r = run("render", bad_scene(tmp_path, text), "-o", out)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and needle in r.stderr and "bad.yaml" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert out.read_bytes() == b"precious"
+
+
+@pytest.mark.parametrize("args,needle", [
+    (("--spp", "0"), "--spp"),
+    (("--width", "abc"), "--width"),
+    (("--seed", "-4"), "--seed"),
+])
+def test_bad_arguments_exit_2(tmp_path, args, needle):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.png", *args)
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("name,needle", [("x.jpg", "unknown output extension"),
+                                         ("missing/dir/x.png", "does not exist")])
+def test_bad_output_path_is_reported_before_rendering(tmp_path, name, needle):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / name)
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr
