@@ -48,6 +48,8 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int)
     pixel, sample_id = job.samples(start, stop)
     state = path_state(key, sample_id)
     u = np.stack([uniform(state, d) for d in range(4)])
+    if cs.scene.render.integrator == "whitted" and cs.scene.render.samples_per_pixel == 1:
+        u[:2] = 0.5  # classic Whitted: one sample goes through the pixel centre
     origin, direction = frame.generate_rays(pixel, u)
     n = stop - start
     return PathBatch(

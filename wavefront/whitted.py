@@ -1,0 +1,132 @@
+"""Whitted-style ray tracing with Phong shading, through the wavefront engine.
+
+Follows the Whitted/Phong source document (``003_84cf6c3439c95e69.txt``):
+at every hit the colour is
+
+    k_a * ambient + sum over unshadowed lights [k_d * light * max(0, n.l)
+                                                + k_s * light * max(0, r.v)^shininess]
+
+with ``l`` the unit vector to the light, ``v`` the unit vector to the eye and
+``r = 2 (n.l) n - l``, plus, while depth remains, ``k_r`` times the colour
+seen along the mirror-reflected ray, added whether or not the point is in
+shadow.  ``max_depth`` counts those recursive rays (3 by default).
+
+There is no recursion in code: a wavefront of rays with a per-ray weight (the
+product of ``k_r`` along its history) is intersected, shaded, and replaced by
+its reflected rays.  Shadow rays are one more batch per light.  Other
+material kinds, so that any scene renders sensibly:
+
+* lambertian: Phong with only a diffuse term (``k_d = albedo``);
+* metal: a mirror with ``k_r = albedo`` and no local term (fuzz is ignored);
+* dielectric: splits into a reflected ray weighted by Schlick's reflectance
+  and a refracted ray weighted by the rest (all reflected under total
+  internal reflection), both followed;
+* emissive: its colour, and the ray ends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .batch import PathBatch
+from .film import Job
+from .path import TraceStats, camera_paths
+from .scene import CompiledScene
+from .vecmath import dot, normalize, reflect, refract, schlick
+
+# A secondary ray whose weight is below this in every channel cannot change
+# an 8-bit pixel; dropping it keeps glass splitting from doubling the
+# wavefront at every level.
+MIN_WEIGHT = 1e-6
+# Camera rays per wavefront, as a fraction of the capacity: glass splits let
+# a wavefront grow, and a chunk's descendants are never separated, so each
+# sample's contributions are always added in the same order.
+CHUNK_FRACTION = 4
+
+
+def phong_local(cs: CompiledScene, point, normal, view, material) -> np.ndarray:
+    """Ambient plus, for each light a shadow ray does not block, diffuse and specular."""
+    t = cs.materials
+    color = t.ambient[:, material] * np.asarray(cs.scene.ambient)[:, None]
+    diffuse, specular, shininess = t.albedo[:, material], t.specular[:, material], t.shininess[material]
+    for k in range(cs.light_position.shape[1]):
+        to_light = cs.light_position[:, k:k + 1] - point
+        distance = np.sqrt(dot(to_light, to_light))
+        l = to_light / distance
+        lit = ~cs.spheres.occluded(point, l, distance)
+        n_dot_l = dot(normal, l)
+        r = 2.0 * n_dot_l * normal - l
+        highlight = np.maximum(0.0, dot(r, view)) ** shininess
+        light = cs.light_color[:, k:k + 1]
+        color += lit * light * (diffuse * np.maximum(0.0, n_dot_l) + specular * highlight)
+    return color
+
+
+def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None) -> np.ndarray:
+    """Radiance of every sample of ``job``; shape ``(3, job.size)``."""
+    scene = cs.scene
+    frame = scene.camera.frame(scene.width, scene.height)
+    max_depth = scene.render.depth
+    t = cs.materials
+    emissive, dielectric = t.code("emissive"), t.code("dielectric")
+    radiance = np.zeros((3, job.size))
+    stats = stats if stats is not None else TraceStats()
+    stats.samples += job.size
+
+    def add(slot, value):
+        # a glass split gives one sample two rays in a batch: accumulate with add.at
+        np.add.at(radiance, (slice(None), slot), value)
+
+    chunk = max(1, capacity // CHUNK_FRACTION)
+    for start in range(0, job.size, chunk):
+        live = camera_paths(cs, frame, key, job, start, min(job.size, start + chunk))
+        while len(live):
+            stats.segments += len(live)
+            hits = cs.spheres.intersect(live.origin, live.direction)
+            hit = hits.sphere_idx >= 0
+            esc = np.flatnonzero(~hit)
+            if esc.size:
+                add(live.slot[esc], live.throughput[:, esc] * scene.background.radiance(live.direction[:, esc]))
+            hit_idx = np.flatnonzero(hit)
+            if hit_idx.size == 0:
+                break
+            point, normal, front_face, sphere = cs.spheres.surface(live.origin, live.direction, hits, hit_idx)
+            material = cs.spheres.material_idx[sphere]
+            kind = t.kind[material]
+            d = live.direction[:, hit_idx]
+            weight = live.throughput[:, hit_idx]
+            slot = live.slot[hit_idx]
+
+            glows = kind == emissive
+            add(slot[glows], weight[:, glows] * t.emission[:, material[glows]])
+            glass = kind == dielectric
+            shaded = ~(glows | glass)
+            add(slot[shaded], weight[:, shaded] * phong_local(
+                cs, point[:, shaded], normal[:, shaded], -d[:, shaded], material[shaded]))
+            if live.depth[0] >= max_depth:  # a generation shares one depth
+                break
+
+            # secondary rays: mirror reflection weighted by k_r ...
+            mirror_weight = np.where(shaded, weight * t.reflectivity[:, material], 0.0)
+            # ... and for glass, reflection and refraction weighted by Schlick
+            ratio = np.where(front_face, 1.0 / t.refraction_index[material], t.refraction_index[material])
+            cos_theta = np.minimum(-dot(d, normal), 1.0)
+            sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
+            reflectance = np.where(ratio * sin_theta > 1.0, 1.0, schlick(cos_theta, ratio))
+            mirror_weight = np.where(glass, weight * reflectance, mirror_weight)
+            refract_weight = weight * (1.0 - reflectance)
+
+            reflected = normalize(reflect(d, normal))
+            keep_r = np.flatnonzero(mirror_weight.max(axis=0) > MIN_WEIGHT)
+            keep_t = np.flatnonzero(glass & (refract_weight.max(axis=0) > MIN_WEIGHT))
+            depth = live.depth[hit_idx] + 1
+            refracted = normalize(refract(d[:, keep_t], normal[:, keep_t], ratio[keep_t]))
+            live = PathBatch(
+                origin=np.concatenate((point[:, keep_r], point[:, keep_t]), axis=1),
+                direction=np.concatenate((reflected[:, keep_r], refracted), axis=1),
+                throughput=np.concatenate((mirror_weight[:, keep_r], refract_weight[:, keep_t]), axis=1),
+                slot=np.concatenate((slot[keep_r], slot[keep_t])),
+                state=np.concatenate((live.state[hit_idx][keep_r], live.state[hit_idx][keep_t])),
+                depth=np.concatenate((depth[keep_r], depth[keep_t])),
+            )
+    return radiance
