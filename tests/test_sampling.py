@@ -11,7 +11,7 @@ from scipy import stats
 
 from wavefront.materials import scatter_lambertian
 from wavefront.sampling import (mix64, path_state, random_in_unit_disk, random_unit_vector,
-                                scene_key, uniform)
+                                scene_key, uniform_pairs)
 from wavefront.vecmath import normalize
 
 N = 200_000
@@ -20,8 +20,9 @@ REJECT = 1e-9  # a wrong sampler must be rejected overwhelmingly
 
 
 def project_uniforms(count, n=N, seed=7):
+    """``count`` streams of uniforms exactly as renders draw them (in pairs)."""
     state = path_state(scene_key(seed), np.arange(n, dtype=np.uint64))
-    return [uniform(state, d) for d in range(count)]
+    return list(np.concatenate([uniform_pairs(state, p) for p in range((count + 1) // 2)]))[:count]
 
 
 def chi2_pvalue(counts, expected=None):
@@ -49,8 +50,9 @@ def pair_histogram(a, b, bins=20):
 
 
 def test_project_uniforms_are_independent_across_dimensions_and_samples():
-    u0, u1 = project_uniforms(2)
-    assert chi2_pvalue(pair_histogram(u0, u1)) > ACCEPT  # two decisions of one path
+    u0, u1, u2 = project_uniforms(3)
+    assert chi2_pvalue(pair_histogram(u0, u1)) > ACCEPT  # the two halves of one hash
+    assert chi2_pvalue(pair_histogram(u0, u2)) > ACCEPT  # two hashes of one path
     assert chi2_pvalue(pair_histogram(u0[:-1], u0[1:])) > ACCEPT  # neighbouring paths
     other = project_uniforms(1, seed=8)[0]
     assert chi2_pvalue(pair_histogram(u0, other)) > ACCEPT  # neighbouring seeds

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import T_MIN, Hits, SphereSet, sphere_roots
+from .vecmath import dot
+from .geometry import T_MIN, Hits, SphereSet, nearest_root, sphere_roots
 
 LEAF_SIZE = 4
 
@@ -34,8 +35,8 @@ class SphereBVH:
     def __len__(self) -> int:
         return len(self.spheres)
 
-    def surface(self, origin, direction, hits, hit_idx):
-        return self.spheres.surface(origin, direction, hits, hit_idx)
+    def surface(self, origin, direction, t, sphere):
+        return self.spheres.surface(origin, direction, t, sphere)
 
     def occluded(self, origin, direction, t_max) -> np.ndarray:
         return self.intersect(origin, direction, t_max).sphere_idx >= 0
@@ -86,6 +87,8 @@ class SphereBVH:
         best_t = limit.copy()
         with np.errstate(divide="ignore"):
             inv = 1.0 / direction
+        d_dot_o = dot(direction, origin)
+        o_dot_o = dot(origin, origin)
         ray = np.arange(n)
         node = np.zeros(n, dtype=np.int64)
         found_ray, found_t, found_sphere = [], [], []
@@ -107,10 +110,9 @@ class SphereBVH:
                 pr = np.repeat(lr, reps)
                 start = np.repeat(self.first[ln] - np.cumsum(reps) + reps, reps)
                 sphere = self.order[start + np.arange(pr.size)]
-                near_t, far_t, valid = sphere_roots(self.center[:, sphere], self.spheres.radius_squared[sphere],
-                                                    origin[:, pr], direction[:, pr])
-                t = np.where(near_t > T_MIN, near_t, far_t)
-                ok = valid & (t > T_MIN) & (t < limit[pr])
+                t = nearest_root(*sphere_roots(self.center[:, sphere], self.spheres.cc_minus_r2[sphere],
+                                               origin[:, pr], direction[:, pr], d_dot_o[pr], o_dot_o[pr]))
+                ok = (t < limit[pr])
                 pr, t, sphere = pr[ok], t[ok], sphere[ok]
                 np.minimum.at(best_t, pr, t)
                 found_ray.append(pr), found_t.append(t), found_sphere.append(sphere)

@@ -51,6 +51,7 @@ class SphereSet:
         self.radius = np.ascontiguousarray(radius, dtype=np.float64)
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
         self.radius_squared = self.radius * self.radius
+        self.cc_minus_r2 = (self.center * self.center).sum(axis=0) - self.radius_squared
 
     def __len__(self) -> int:
         return self.radius.shape[0]
@@ -70,37 +71,50 @@ class SphereSet:
         """Whether anything lies strictly between ``T_MIN`` and ``t_max``."""
         return self.intersect(origin, direction, t_max).sphere_idx >= 0
 
-    def surface(self, origin, direction, hits: Hits, hit_idx: np.ndarray):
-        """Point, outward normal and front-face flag of the given hit rows.
+    def surface(self, origin, direction, t, sphere):
+        """Point, normal and front-face flag where rays hit ``sphere`` at ``t``.
 
-        The returned normal faces against the ray (the book's
-        ``set_face_normal``); ``front_face`` says whether the ray struck the
-        outside.
+        All arguments are for hitting rows only.  The returned normal faces
+        against the ray (the book's ``set_face_normal``); ``front_face`` says
+        whether the ray struck the outside.
         """
-        sphere = hits.sphere_idx[hit_idx]
-        d = direction[:, hit_idx]
-        point = origin[:, hit_idx] + hits.t[hit_idx] * d
+        d = direction
+        point = origin + t * d
         outward = (point - self.center[:, sphere]) / self.radius[sphere]
         front_face = dot(d, outward) < 0.0
         normal = np.where(front_face, outward, -outward)
         return point, normal, front_face, sphere
 
 
-def sphere_roots(center, radius_squared, origin, direction):
-    """Both ray parameters where rays meet spheres (broadcasting).
+def sphere_roots(center, cc_minus_r2, origin, direction, d_dot_o, o_dot_o):
+    """Both ray parameters where unit-direction rays meet spheres (broadcasting).
 
-    Uses the geometric form of the discriminant, ``r^2 - |oc - (d.oc) d|^2``
-    (Haines et al., Ray Tracing Gems ch. 7), which loses far less precision
-    than ``b^2 - c`` when a ray passes a huge sphere such as a ground of
-    radius 1000.  Returns ``(near, far, valid)``.
+    With ``|d| = 1`` the quadratic's half-b is ``h = d.c - d.o`` and its c is
+    ``|c|^2 - r^2 - 2 c.o + |o|^2``.  Splitting the terms this way lets the
+    per-ray (``d.o``, ``|o|^2``) and per-sphere (``|c|^2 - r^2``) parts be
+    computed once per bounce instead of once per ray-sphere pair, roughly
+    halving the work of the pairwise stage.  In float64 the cancellation in
+    the c term costs about ``1e-16 |c|^2`` absolute, far below ``T_MIN`` for
+    spheres up to ~1e6 from the origin (see the README's limits).  Both the
+    brute-force and the BVH intersectors call this with the same operands,
+    so they agree bit for bit.  Returns ``(near, far, valid)``.
     """
-    oc = center - origin
-    h = dot(direction, oc)
-    perp = oc - h * direction
-    disc = radius_squared - dot(perp, perp)
+    h = direction[0] * center[0] + direction[1] * center[1] + direction[2] * center[2]
+    h -= d_dot_o
+    co = origin[0] * center[0] + origin[1] * center[1] + origin[2] * center[2]
+    c_term = cc_minus_r2 - 2.0 * co
+    c_term += o_dot_o
+    disc = h * h
+    disc -= c_term
     valid = disc >= 0.0
-    sqrt_disc = np.sqrt(np.where(valid, disc, 0.0))
+    sqrt_disc = np.sqrt(np.maximum(disc, 0.0))
     return h - sqrt_disc, h + sqrt_disc, valid
+
+
+def nearest_root(near, far, valid):
+    """The first root past ``T_MIN``, or ``inf`` where there is none."""
+    t = np.where(near > T_MIN, near, far)
+    return np.where(valid & (t > T_MIN), t, np.inf)
 
 
 def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -> Hits:
@@ -109,22 +123,19 @@ def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -
     best_t = np.full(n, np.inf)
     best_idx = np.full(n, -1, dtype=np.int32)
     limit = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n,))
+    d_dot_o = dot(direction, origin)
+    o_dot_o = dot(origin, origin)
     m = len(spheres)
     block = max(1, min(m, BLOCK_ELEMENTS // max(n, 1)))
-    o = origin[:, None, :]
-    d = direction[:, None, :]
     for start in range(0, m, block):
         stop = min(m, start + block)
-        near, far, valid = sphere_roots(
-            spheres.center[:, start:stop, None],
-            spheres.radius_squared[start:stop, None],
-            o,
-            d,
-        )
-        t = np.where(near > T_MIN, near, far)
-        t = np.where(valid & (t > T_MIN), t, np.inf)
-        j = np.argmin(t, axis=0)
-        tj = np.take_along_axis(t, j[None, :], axis=0)[0]
+        t = nearest_root(*sphere_roots(spheres.center[:, start:stop, None], spheres.cc_minus_r2[start:stop, None],
+                                       origin[:, None, :], direction[:, None, :], d_dot_o, o_dot_o))
+        if stop - start == 1:
+            j, tj = np.zeros(n, dtype=np.intp), t[0]
+        else:
+            j = np.argmin(t, axis=0)
+            tj = np.take_along_axis(t, j[None, :], axis=0)[0]
         closer = (tj < best_t) & (tj < limit)
         best_t = np.where(closer, tj, best_t)
         best_idx = np.where(closer, j.astype(np.int32) + start, best_idx)

@@ -27,7 +27,7 @@ import numpy as np
 from .batch import PathBatch
 from .film import Job
 from .materials import scatter_dielectric, scatter_lambertian, scatter_metal
-from .sampling import bounce_dimension, path_state, uniform, uniform_at
+from .sampling import bounce_dimension, path_state, uniform_pairs, uniform_pairs_at
 from .scene import CompiledScene
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
@@ -47,7 +47,7 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int)
     """Stage 1: new paths for the job's slots ``start:stop``."""
     pixel, sample_id = job.samples(start, stop)
     state = path_state(key, sample_id)
-    u = np.stack([uniform(state, d) for d in range(4)])
+    u = np.concatenate((uniform_pairs(state, 0), uniform_pairs(state, 1)))
     if cs.scene.render.integrator == "whitted" and cs.scene.render.samples_per_pixel == 1:
         u[:2] = 0.5  # classic Whitted: one sample goes through the pixel centre
     origin, direction = frame.generate_rays(pixel, u)
@@ -90,13 +90,6 @@ def kernels_present(table):
     return out
 
 
-def _uniforms(batch: PathBatch, idx: np.ndarray, count: int) -> np.ndarray:
-    """``count`` uniforms per path for its current bounce; shape (count, n)."""
-    state = batch.state[idx]
-    depth = batch.depth[idx]
-    return np.stack([uniform_at(state, bounce_dimension(depth, k)) for k in range(count)])
-
-
 def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None) -> np.ndarray:
     """Radiance of every sample of ``job``; shape ``(3, job.size)``."""
     scene = cs.scene
@@ -104,7 +97,8 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     max_depth = scene.render.depth
     table = cs.materials
     kernels = kernels_present(table)
-    code = table.code
+    emissive = table.code("emissive")
+    has_emissive = bool((table.kind == emissive).any())
     radiance = np.zeros((3, job.size))
     stats = stats if stats is not None else TraceStats()
     stats.samples += job.size
@@ -126,7 +120,6 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         # 2. intersect
         hits = cs.spheres.intersect(live.origin, live.direction)
         hit = hits.sphere_idx >= 0
-        alive = hit.copy()
 
         # 3. escaped
         esc_idx = np.flatnonzero(~hit)
@@ -135,43 +128,49 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 live.throughput[:, esc_idx] * scene.background.radiance(live.direction[:, esc_idx])
             )
 
+        # from here on only the hit rows matter: compact once
         hit_idx = np.flatnonzero(hit)
-        if hit_idx.size:
-            point, normal, front_face, sphere = cs.spheres.surface(live.origin, live.direction, hits, hit_idx)
-            material = cs.spheres.material_idx[sphere]
-            kind = table.kind[material]
-            direction_in = live.direction[:, hit_idx]
-            new_direction = np.empty_like(direction_in)
-            attenuation = np.ones_like(direction_in)
-            absorbed = np.zeros(hit_idx.size, dtype=bool)
+        live = live.take(hit_idx)
+        if len(live) == 0:
+            continue
+        point, normal, front_face, sphere = cs.spheres.surface(
+            live.origin, live.direction, hits.t[hit_idx], hits.sphere_idx[hit_idx])
+        material = cs.spheres.material_idx[sphere]
+        kind = table.kind[material]
+        u = uniform_pairs_at(live.state, bounce_dimension(live.depth, 0))
+        absorbed = np.zeros(len(live), dtype=bool)
 
-            # 4. emitted
-            sel = np.flatnonzero(kind == code("emissive"))
+        # 4. emitted
+        if has_emissive:
+            sel = np.flatnonzero(kind == emissive)
             if sel.size:
-                rows = hit_idx[sel]
-                radiance[:, live.slot[rows]] += live.throughput[:, rows] * table.emission[:, material[sel]]
+                radiance[:, live.slot[sel]] += live.throughput[:, sel] * table.emission[:, material[sel]]
                 absorbed[sel] = True
 
-            # 5. scatter, one kernel per kind present
-            for kind_codes, kernel in kernels:
-                sel = np.flatnonzero(np.isin(kind, kind_codes) if len(kind_codes) > 1 else kind == kind_codes[0])
-                if sel.size == 0:
-                    continue
-                m = material[sel]
-                att, d, dead = kernel(table, m, direction_in[:, sel], normal[:, sel], front_face[sel],
-                                      _uniforms(live, hit_idx[sel], 2))
-                attenuation[:, sel] = att
-                new_direction[:, sel] = d
-                absorbed[sel] = dead
+        # 5. scatter, one kernel per kind present; a lone kind skips the gather
+        new_direction = live.direction  # overwritten row by row below
+        for kind_codes, kernel in kernels:
+            mask = np.isin(kind, kind_codes) if len(kind_codes) > 1 else kind == kind_codes[0]
+            if len(kernels) == 1 and not has_emissive:
+                att, d, dead = kernel(table, material, live.direction, normal, front_face, u)
+                new_direction, absorbed = d, dead
+                live.throughput *= att
+                break
+            sel = np.flatnonzero(mask)
+            if sel.size == 0:
+                continue
+            att, d, dead = kernel(table, material[sel], live.direction[:, sel], normal[:, sel],
+                                  front_face[sel], u[:, sel])
+            live.throughput[:, sel] *= att
+            new_direction[:, sel] = d
+            absorbed[sel] = dead
 
-            live.origin[:, hit_idx] = point
-            live.direction[:, hit_idx] = new_direction
-            live.throughput[:, hit_idx] *= attenuation
-            alive[hit_idx] = ~absorbed
-
-        # 6. compact: a path that has used max_depth segments contributes nothing more
+        # 6. compact: absorbed paths end, and so do paths that have used
+        # max_depth segments (they contribute nothing more)
+        live.origin = point
+        live.direction = new_direction
         live.depth += 1
-        alive &= live.depth < max_depth
+        alive = ~absorbed & (live.depth < max_depth)
         if not alive.all():
             live = live.take(np.flatnonzero(alive))
     return radiance

@@ -30,15 +30,13 @@ import numpy as np
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # Weyl increment: 2^64 / golden ratio
 _MIX_1 = np.uint64(0xBF58476D1CE4E5B9)
 _MIX_2 = np.uint64(0x94D049BB133111EB)
-_S30, _S27, _S31, _S11 = (np.uint64(s) for s in (30, 27, 31, 11))
-_TO_UNIT = 2.0**-53  # 53 random bits -> a double in [0, 1)
+_S30, _S27, _S31 = (np.uint64(s) for s in (30, 27, 31))
 
-# Dimensions 0..CAMERA_DIMENSIONS-1 belong to the camera (pixel jitter x, y and
-# lens u, v); bounce b then owns BOUNCE_DIMENSIONS dimensions starting at
-# CAMERA_DIMENSIONS + b * BOUNCE_DIMENSIONS.  Fixed blocks mean a sample draws
-# the same number for the same decision however it was scheduled.
-CAMERA_DIMENSIONS = 4
-BOUNCE_DIMENSIONS = 4
+# Numbers come in pairs from one hash.  Pairs 0 and 1 belong to the camera
+# (pixel jitter x, y; lens u, v); bounce b owns pair CAMERA_PAIRS + b.  Fixed
+# slots mean a sample draws the same number for the same decision however it
+# was scheduled.
+CAMERA_PAIRS = 2
 
 
 def mix64(x: np.ndarray) -> np.ndarray:
@@ -62,34 +60,38 @@ def path_state(key: np.uint64, sample_id: np.ndarray) -> np.ndarray:
     return mix64(sample_id.astype(np.uint64, copy=False) ^ key)
 
 
-def uniform(state: np.ndarray, dimension: int) -> np.ndarray:
-    """Uniform doubles in ``[0, 1)``, one per path, for one ``dimension``.
+def bounce_dimension(depth: np.ndarray | int, k: int = 0) -> np.ndarray | int:
+    """Pair index of the ``k``-th pair drawn at bounce ``depth`` (one per bounce today)."""
+    return CAMERA_PAIRS + depth + k
 
-    Parameters
-    ----------
-    state : ndarray of shape (N,), uint64
-        From :func:`path_state`.
-    dimension : int
-        Which decision along the path this number is for.
+
+_LOW32 = np.uint64(0xFFFFFFFF)
+_S32 = np.uint64(32)
+_TO_UNIT_32 = 2.0**-32
+
+
+def _split_pairs(z: np.ndarray) -> np.ndarray:
+    """Two uniforms in [0, 1) with 32 bits each from one 64-bit hash.
+
+    32 bits resolve directions far below a pixel; one hash per pair halves
+    the cost of random numbers, the largest single item of a bounce after
+    intersection.
     """
-    offset = np.uint64((0x9E3779B97F4A7C15 * (dimension + 1)) & 0xFFFFFFFFFFFFFFFF)
-    z = mix64(state + offset)
-    return (z >> _S11).astype(np.float64) * _TO_UNIT
+    out = np.empty((2, z.shape[0]))
+    np.multiply(z >> _S32, _TO_UNIT_32, out=out[0])
+    np.multiply(z & _LOW32, _TO_UNIT_32, out=out[1])
+    return out
 
 
-def bounce_dimension(depth: np.ndarray | int, k: int) -> np.ndarray | int:
-    """Dimension of the ``k``-th number drawn at bounce ``depth``."""
-    return CAMERA_DIMENSIONS + depth * BOUNCE_DIMENSIONS + k
+def uniform_pairs(state: np.ndarray, pair: int) -> np.ndarray:
+    """Uniforms for dimensions ``2 pair`` and ``2 pair + 1``; shape (2, N)."""
+    offset = np.uint64((0x9E3779B97F4A7C15 * (pair + 1)) & 0xFFFFFFFFFFFFFFFF)
+    return _split_pairs(mix64(state + offset))
 
 
-def uniform_at(state: np.ndarray, dimension: np.ndarray) -> np.ndarray:
-    """Like :func:`uniform` but with a per-path ``dimension`` array.
-
-    A refilled wavefront mixes paths at different depths, so each row asks for
-    its own dimension.
-    """
-    z = mix64(state + _GOLDEN * (dimension.astype(np.uint64) + np.uint64(1)))
-    return (z >> _S11).astype(np.float64) * _TO_UNIT
+def uniform_pairs_at(state: np.ndarray, pair: np.ndarray) -> np.ndarray:
+    """Like :func:`uniform_pairs` with a per-path pair index; shape (2, N)."""
+    return _split_pairs(mix64(state + _GOLDEN * (pair.astype(np.uint64) + np.uint64(1))))
 
 
 def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
@@ -105,8 +107,12 @@ def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """
     z = 1.0 - 2.0 * u1
     r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = (2.0 * np.pi) * u2
-    return np.stack((r * np.cos(phi), r * np.sin(phi), z))
+    # cos(phi) from the library, sin(phi) as a signed square root: one
+    # transcendental instead of two (sin >= 0 exactly when u2 <= 1/2)
+    c = np.cos((2.0 * np.pi) * u2)
+    s = np.sqrt(np.maximum(0.0, 1.0 - c * c))
+    s = np.where(u2 <= 0.5, s, -s)
+    return np.stack((r * c, r * s, z))
 
 
 def random_in_unit_disk(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:

@@ -90,7 +90,8 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
             hit_idx = np.flatnonzero(hit)
             if hit_idx.size == 0:
                 break
-            point, normal, front_face, sphere = cs.spheres.surface(live.origin, live.direction, hits, hit_idx)
+            point, normal, front_face, sphere = cs.spheres.surface(
+                live.origin[:, hit_idx], live.direction[:, hit_idx], hits.t[hit_idx], hits.sphere_idx[hit_idx])
             material = cs.spheres.material_idx[sphere]
             kind = t.kind[material]
             d = live.direction[:, hit_idx]
