@@ -28,8 +28,13 @@ class PathBatch:
         return self.slot.shape[0]
 
     def take(self, idx: np.ndarray) -> PathBatch:
-        """The paths at ``idx`` (indices or a mask), every field compacted alike."""
-        return PathBatch(*(getattr(self, f.name)[..., idx] for f in fields(self)))
+        """The paths at ``idx`` (indices or a mask), every field compacted alike.
+
+        ``np.take`` rather than fancy indexing: see :func:`wavefront.vecmath.gather`.
+        """
+        if idx.dtype == bool:
+            idx = np.flatnonzero(idx)
+        return PathBatch(*(np.take(getattr(self, f.name), idx, axis=-1) for f in fields(self)))
 
     @staticmethod
     def concat(a: PathBatch, b: PathBatch) -> PathBatch:

@@ -10,17 +10,23 @@ NumPy calls over all pairs of that level; the Python loop runs over the
 tree's depth, never over rays.
 
 The tree is built top-down by median split along the widest axis of the
-sphere centres, with at most ``LEAF_SIZE`` spheres per leaf.
+sphere centres, with at most ``LEAF_SIZE`` spheres per leaf.  Outsized
+spheres (a ground of radius 1000 among balls of 0.2) are kept out of the tree
+and tested by brute force first: inside the tree their boxes would cover
+every node, and testing them first gives most rays a nearby hit that prunes
+every box beyond it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .vecmath import dot
-from .geometry import T_MIN, Hits, SphereSet, nearest_root, sphere_roots
+from .vecmath import dot, gather
+from .geometry import T_MIN, Hits, SphereSet, intersect_brute_force, nearest_root, sphere_roots
 
 LEAF_SIZE = 4
+OUTSIZED = 8.0  # radius above this many times the median: tested outside the tree
+MAX_OUTSIZED = 16
 
 
 class SphereBVH:
@@ -30,7 +36,13 @@ class SphereBVH:
         self.spheres = spheres
         self.center, self.radius = spheres.center, spheres.radius
         self.material_idx = spheres.material_idx
-        self._build()
+        order = np.argsort(-spheres.radius, kind="stable")[:MAX_OUTSIZED]
+        self.outsized = np.sort(order[spheres.radius[order] > OUTSIZED * np.median(spheres.radius)])
+        inside = np.ones(len(spheres), dtype=bool)
+        inside[self.outsized] = False
+        self.outsized_set = SphereSet(spheres.center[:, self.outsized], spheres.radius[self.outsized],
+                                      spheres.material_idx[self.outsized])
+        self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
         return len(self.spheres)
@@ -43,7 +55,7 @@ class SphereBVH:
 
     # -- construction ------------------------------------------------------
 
-    def _build(self) -> None:
+    def _build(self, members: np.ndarray) -> None:
         c, r = self.center, self.radius
         lo_s, hi_s = c - r, c + r
         lo, hi, child, first, count, order = [], [], [], [], [], []
@@ -71,9 +83,8 @@ class SphereBVH:
             _fill(left, ranked[:half])
             _fill(left + 1, ranked[half:])
 
-        _fill(allocate(1), np.arange(len(self.spheres)))
-        self.lo = np.array(lo).T.copy()
-        self.hi = np.array(hi).T.copy()
+        _fill(allocate(1), members)
+        self.boxes = np.concatenate((np.array(lo).T, np.array(hi).T))  # (6, K): lo xyz, hi xyz
         self.child = np.array(child, dtype=np.int64)
         self.first = np.array(first, dtype=np.int64)
         self.count = np.array(count, dtype=np.int64)
@@ -84,48 +95,64 @@ class SphereBVH:
     def intersect(self, origin, direction, t_max=np.inf) -> Hits:
         n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n,))
-        best_t = limit.copy()
-        with np.errstate(divide="ignore"):
-            inv = 1.0 / direction
+        # outsized spheres first: their hits bound the traversal
+        first = intersect_brute_force(self.outsized_set, origin, direction, t_max)
+        best_t = np.minimum(first.t, limit)
         d_dot_o = dot(direction, origin)
         o_dot_o = dot(origin, origin)
-        ray = np.arange(n)
-        node = np.zeros(n, dtype=np.int64)
+        with np.errstate(divide="ignore"):
+            inv = 1.0 / direction
+        # one table per side so each level gathers once: rows o, 1/d and lo, hi
+        rays = np.concatenate((origin, inv))
         found_ray, found_t, found_sphere = [], [], []
+        # the root is entered by every ray that meets the scene's box at all;
+        # start from its children (or the root itself if it is a leaf)
+        root_children = self.child[0]
+        if root_children < 0:
+            ray, node = np.arange(n), np.zeros(n, dtype=np.int64)
+        else:
+            ray = np.concatenate((np.arange(n), np.arange(n)))
+            node = np.repeat(np.array([root_children, root_children + 1]), n)
         while ray.size:
             # slab test against the boxes, culled by the best hit so far
-            o, iv = origin[:, ray], inv[:, ray]
+            r, b = np.take(rays, ray, axis=1), np.take(self.boxes, node, axis=1)
             with np.errstate(invalid="ignore"):
-                t0 = (self.lo[:, node] - o) * iv
-                t1 = (self.hi[:, node] - o) * iv
-            near = np.fmax(np.fmax(np.fmin(t0[0], t1[0]), np.fmin(t0[1], t1[1])), np.fmin(t0[2], t1[2]))
-            far = np.fmin(np.fmin(np.fmax(t0[0], t1[0]), np.fmax(t0[1], t1[1])), np.fmax(t0[2], t1[2]))
-            keep = (near <= far) & (far > T_MIN) & (near < best_t[ray])
-            ray, node = ray[keep], node[keep]
+                t0 = (b[:3] - r[:3]) * r[3:]
+                t1 = (b[3:] - r[:3]) * r[3:]
+            lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
+            near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
+            far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
+            keep = np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best_t.take(ray)))  # <=: keep exact ties
+            ray, node = ray.take(keep), node.take(keep)
 
-            leaf = self.count[node] > 0
-            if leaf.any():
-                lr, ln = ray[leaf], node[leaf]
-                reps = self.count[ln]
+            count = self.count.take(node)
+            leaf = count > 0
+            leaf_idx = np.flatnonzero(leaf)
+            if leaf_idx.size:
+                lr, ln = ray.take(leaf_idx), node.take(leaf_idx)
+                reps = count.take(leaf_idx)
                 pr = np.repeat(lr, reps)
-                start = np.repeat(self.first[ln] - np.cumsum(reps) + reps, reps)
-                sphere = self.order[start + np.arange(pr.size)]
-                t = nearest_root(*sphere_roots(self.center[:, sphere], self.spheres.cc_minus_r2[sphere],
-                                               origin[:, pr], direction[:, pr], d_dot_o[pr], o_dot_o[pr]))
-                ok = (t < limit[pr])
-                pr, t, sphere = pr[ok], t[ok], sphere[ok]
+                start = np.repeat(self.first.take(ln) - np.cumsum(reps) + reps, reps)
+                sphere = self.order.take(start + np.arange(pr.size))
+                t = nearest_root(*sphere_roots(gather(self.center, sphere), self.spheres.cc_minus_r2.take(sphere),
+                                               gather(origin, pr), gather(direction, pr),
+                                               d_dot_o.take(pr), o_dot_o.take(pr)))
+                ok = np.flatnonzero((t < limit.take(pr)) & (t <= best_t.take(pr)))
+                pr, t, sphere = pr.take(ok), t.take(ok), sphere.take(ok)
                 np.minimum.at(best_t, pr, t)
                 found_ray.append(pr), found_t.append(t), found_sphere.append(sphere)
-            inner = ~leaf
-            ir, left = ray[inner], self.child[node[inner]]
+            inner = np.flatnonzero(~leaf)
+            ir, left = ray.take(inner), self.child.take(node.take(inner))
             ray = np.concatenate((ir, ir))
             node = np.concatenate((left, left + 1))
 
         best_idx = np.full(n, np.iinfo(np.int32).max, dtype=np.int64)
+        from_first = np.flatnonzero((first.sphere_idx >= 0) & (first.t == best_t))
+        best_idx[from_first] = self.outsized.take(first.sphere_idx.take(from_first))
         if found_ray:
             pr, t, sphere = (np.concatenate(a) for a in (found_ray, found_t, found_sphere))
-            winner = t == best_t[pr]
+            winner = np.flatnonzero(t == best_t.take(pr))
             # ties go to the lowest sphere index, as in brute force
-            np.minimum.at(best_idx, pr[winner], sphere[winner])
+            np.minimum.at(best_idx, pr.take(winner), sphere.take(winner))
         hit = best_idx != np.iinfo(np.int32).max
         return Hits(np.where(hit, best_t, np.inf), np.where(hit, best_idx, -1).astype(np.int32))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .vecmath import dot
+from .vecmath import dot, gather
 
 T_MIN = 1e-3  # skip self-intersection at the ray's own origin (shadow acne)
 
@@ -80,7 +80,7 @@ class SphereSet:
         """
         d = direction
         point = origin + t * d
-        outward = (point - self.center[:, sphere]) / self.radius[sphere]
+        outward = (point - gather(self.center, sphere)) / self.radius.take(sphere)
         front_face = dot(d, outward) < 0.0
         normal = np.where(front_face, outward, -outward)
         return point, normal, front_face, sphere

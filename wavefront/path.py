@@ -29,6 +29,7 @@ from .film import Job
 from .materials import scatter_dielectric, scatter_lambertian, scatter_metal
 from .sampling import bounce_dimension, path_state, uniform_pairs, uniform_pairs_at
 from .scene import CompiledScene
+from .vecmath import gather, scatter, scatter_add
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
 
@@ -63,15 +64,15 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int)
 
 
 def _lambertian(table, m, d, n, front_face, u):
-    return scatter_lambertian(d, n, front_face, table.albedo[:, m], u)
+    return scatter_lambertian(d, n, front_face, gather(table.albedo, m), u)
 
 
 def _metal(table, m, d, n, front_face, u):
-    return scatter_metal(d, n, front_face, table.albedo[:, m], table.fuzz[m], u)
+    return scatter_metal(d, n, front_face, gather(table.albedo, m), table.fuzz.take(m), u)
 
 
 def _dielectric(table, m, d, n, front_face, u):
-    return scatter_dielectric(d, n, front_face, table.refraction_index[m], u)
+    return scatter_dielectric(d, n, front_face, table.refraction_index.take(m), u)
 
 
 # Which material kinds each scatter kernel serves.  Phong surfaces are
@@ -124,9 +125,8 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         # 3. escaped
         esc_idx = np.flatnonzero(~hit)
         if esc_idx.size:
-            radiance[:, live.slot[esc_idx]] += (
-                live.throughput[:, esc_idx] * scene.background.radiance(live.direction[:, esc_idx])
-            )
+            scatter_add(radiance, live.slot.take(esc_idx),
+                        gather(live.throughput, esc_idx) * scene.background.radiance(gather(live.direction, esc_idx)))
 
         # from here on only the hit rows matter: compact once
         hit_idx = np.flatnonzero(hit)
@@ -134,9 +134,9 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if len(live) == 0:
             continue
         point, normal, front_face, sphere = cs.spheres.surface(
-            live.origin, live.direction, hits.t[hit_idx], hits.sphere_idx[hit_idx])
-        material = cs.spheres.material_idx[sphere]
-        kind = table.kind[material]
+            live.origin, live.direction, hits.t.take(hit_idx), hits.sphere_idx.take(hit_idx))
+        material = cs.spheres.material_idx.take(sphere)
+        kind = table.kind.take(material)
         u = uniform_pairs_at(live.state, bounce_dimension(live.depth, 0))
         absorbed = np.zeros(len(live), dtype=bool)
 
@@ -144,7 +144,8 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if has_emissive:
             sel = np.flatnonzero(kind == emissive)
             if sel.size:
-                radiance[:, live.slot[sel]] += live.throughput[:, sel] * table.emission[:, material[sel]]
+                m = material.take(sel)
+                scatter_add(radiance, live.slot.take(sel), gather(live.throughput, sel) * gather(table.emission, m))
                 absorbed[sel] = True
 
         # 5. scatter, one kernel per kind present; a lone kind skips the gather
@@ -159,10 +160,10 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             sel = np.flatnonzero(mask)
             if sel.size == 0:
                 continue
-            att, d, dead = kernel(table, material[sel], live.direction[:, sel], normal[:, sel],
-                                  front_face[sel], u[:, sel])
-            live.throughput[:, sel] *= att
-            new_direction[:, sel] = d
+            att, d, dead = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
+                                  front_face.take(sel), gather(u, sel))
+            scatter(live.throughput, sel, gather(live.throughput, sel) * att)
+            scatter(new_direction, sel, d)
             absorbed[sel] = dead
 
         # 6. compact: absorbed paths end, and so do paths that have used
