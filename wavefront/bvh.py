@@ -84,11 +84,15 @@ class SphereBVH:
             _fill(left + 1, ranked[half:])
 
         _fill(allocate(1), members)
-        self.boxes = np.concatenate((np.array(lo).T, np.array(hi).T))  # (6, K): lo xyz, hi xyz
+        boxes = np.concatenate((np.array(lo).T, np.array(hi).T))  # (6, K): lo xyz, hi xyz
         self.child = np.array(child, dtype=np.int64)
         self.first = np.array(first, dtype=np.int64)
         self.count = np.array(count, dtype=np.int64)
         self.order = np.array(order, dtype=np.int64)
+        # for each interior node its two children's boxes, side by side (12, K)
+        left = np.maximum(self.child, 0)
+        self.child_boxes = np.concatenate((boxes[:, left], boxes[:, left + (self.child >= 0)]))
+
 
     # -- traversal -----------------------------------------------------------
 
@@ -105,46 +109,50 @@ class SphereBVH:
         # one table per side so each level gathers once: rows o, 1/d and lo, hi
         rays = np.concatenate((origin, inv))
         found_ray, found_t, found_sphere = [], [], []
-        # the root is entered by every ray that meets the scene's box at all;
-        # start from its children (or the root itself if it is a leaf)
-        root_children = self.child[0]
-        if root_children < 0:
-            ray, node = np.arange(n), np.zeros(n, dtype=np.int64)
-        else:
-            ray = np.concatenate((np.arange(n), np.arange(n)))
-            node = np.repeat(np.array([root_children, root_children + 1]), n)
-        while ray.size:
-            # slab test against the boxes, culled by the best hit so far
-            r, b = np.take(rays, ray, axis=1), np.take(self.boxes, node, axis=1)
-            with np.errstate(invalid="ignore"):
-                t0 = (b[:3] - r[:3]) * r[3:]
-                t1 = (b[3:] - r[:3]) * r[3:]
-            lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
-            near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
-            far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
-            keep = np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best_t.take(ray)))  # <=: keep exact ties
-            ray, node = ray.take(keep), node.take(keep)
 
-            count = self.count.take(node)
-            leaf = count > 0
-            leaf_idx = np.flatnonzero(leaf)
+        def test_leaves(ray, node):
+            """Expand (ray, leaf) pairs to (ray, sphere) pairs and keep the hits."""
+            reps = self.count.take(node)
+            pr = np.repeat(ray, reps)
+            start = np.repeat(self.first.take(node) - np.cumsum(reps) + reps, reps)
+            sphere = self.order.take(start + np.arange(pr.size))
+            t = nearest_root(*sphere_roots(gather(self.center, sphere), self.spheres.cc_minus_r2.take(sphere),
+                                           gather(origin, pr), gather(direction, pr),
+                                           d_dot_o.take(pr), o_dot_o.take(pr)))
+            ok = np.flatnonzero((t < limit.take(pr)) & (t <= best_t.take(pr)))
+            pr, t, sphere = pr.take(ok), t.take(ok), sphere.take(ok)
+            np.minimum.at(best_t, pr, t)
+            found_ray.append(pr), found_t.append(t), found_sphere.append(sphere)
+
+        if self.child[0] < 0:  # the whole tree is one leaf
+            test_leaves(np.arange(n), np.zeros(n, dtype=np.int64))
+            ray = np.empty(0, dtype=np.int64)
+        else:
+            ray, node = np.arange(n), np.zeros(n, dtype=np.int64)
+        # (ray, interior node) pairs whose box the ray enters; both children's
+        # boxes are tested at once so each level gathers the ray data once
+        while ray.size:
+            r, boxes = np.take(rays, ray, axis=1), np.take(self.child_boxes, node, axis=1)
+            best = best_t.take(ray)
+            entered = []
+            for side in (0, 1):
+                b = boxes[6 * side:6 * side + 6]
+                with np.errstate(invalid="ignore"):
+                    t0 = (b[:3] - r[:3]) * r[3:]
+                    t1 = (b[3:] - r[:3]) * r[3:]
+                lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
+                near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
+                far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
+                entered.append(np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best)))  # <=: keep ties
+            left = self.child.take(node)
+            ray = np.concatenate((ray.take(entered[0]), ray.take(entered[1])))
+            node = np.concatenate((left.take(entered[0]), left.take(entered[1]) + 1))
+            is_leaf = self.count.take(node) > 0
+            leaf_idx = np.flatnonzero(is_leaf)
             if leaf_idx.size:
-                lr, ln = ray.take(leaf_idx), node.take(leaf_idx)
-                reps = count.take(leaf_idx)
-                pr = np.repeat(lr, reps)
-                start = np.repeat(self.first.take(ln) - np.cumsum(reps) + reps, reps)
-                sphere = self.order.take(start + np.arange(pr.size))
-                t = nearest_root(*sphere_roots(gather(self.center, sphere), self.spheres.cc_minus_r2.take(sphere),
-                                               gather(origin, pr), gather(direction, pr),
-                                               d_dot_o.take(pr), o_dot_o.take(pr)))
-                ok = np.flatnonzero((t < limit.take(pr)) & (t <= best_t.take(pr)))
-                pr, t, sphere = pr.take(ok), t.take(ok), sphere.take(ok)
-                np.minimum.at(best_t, pr, t)
-                found_ray.append(pr), found_t.append(t), found_sphere.append(sphere)
-            inner = np.flatnonzero(~leaf)
-            ir, left = ray.take(inner), self.child.take(node.take(inner))
-            ray = np.concatenate((ir, ir))
-            node = np.concatenate((left, left + 1))
+                test_leaves(ray.take(leaf_idx), node.take(leaf_idx))
+            inner = np.flatnonzero(~is_leaf)
+            ray, node = ray.take(inner), node.take(inner)
 
         best_idx = np.full(n, np.iinfo(np.int32).max, dtype=np.int64)
         from_first = np.flatnonzero((first.sphere_idx >= 0) & (first.t == best_t))
