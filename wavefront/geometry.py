@@ -97,7 +97,12 @@ def sphere_roots(center, cc_minus_r2, origin, direction, d_dot_o, o_dot_o):
     the c term costs about ``1e-16 |c|^2`` absolute, far below ``T_MIN`` for
     spheres up to ~1e6 from the origin (see the README's limits).  Both the
     brute-force and the BVH intersectors call this with the same operands,
-    so they agree bit for bit.  Returns ``(near, far, valid)``.
+    so they agree bit for bit.
+
+    A miss (negative discriminant) yields NaN roots rather than a separate
+    mask: every comparison with NaN is false, so :func:`nearest_root` turns
+    them into ``inf`` with no extra pass over the pairs.  Returns
+    ``(near, far)``.
     """
     h = direction[0] * center[0] + direction[1] * center[1] + direction[2] * center[2]
     h -= d_dot_o
@@ -106,15 +111,15 @@ def sphere_roots(center, cc_minus_r2, origin, direction, d_dot_o, o_dot_o):
     c_term += o_dot_o
     disc = h * h
     disc -= c_term
-    valid = disc >= 0.0
-    sqrt_disc = np.sqrt(np.maximum(disc, 0.0))
-    return h - sqrt_disc, h + sqrt_disc, valid
+    with np.errstate(invalid="ignore"):
+        sqrt_disc = np.sqrt(disc)
+    return h - sqrt_disc, h + sqrt_disc
 
 
-def nearest_root(near, far, valid):
-    """The first root past ``T_MIN``, or ``inf`` where there is none."""
+def nearest_root(near, far):
+    """The first root past ``T_MIN``, or ``inf`` where there is none (or NaN)."""
     t = np.where(near > T_MIN, near, far)
-    return np.where(valid & (t > T_MIN), t, np.inf)
+    return np.where(t > T_MIN, t, np.inf)
 
 
 def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -> Hits:

@@ -26,7 +26,7 @@ from .scene import CompiledScene, Scene
 MiB = 1024 * 1024
 DEFAULT_MEMORY = 1024 * MiB  # whole render, all processes
 # Measured bytes per path in flight, the batch and every per-bounce temporary
-# included; see benchmarks/bench_capacity.py.
+# included; see ``benchmarks/bench.py --section capacity``.
 BYTES_PER_PATH = 1500
 MAX_CAPACITY = 1 << 16  # larger wavefronts fall out of cache and get slower
 MIN_CAPACITY = 256
@@ -45,7 +45,7 @@ class RenderStats:
     units_total: int = 0
     workers: int = 1
     capacity: int = 0
-    peak_memory: int = 0  # bytes, the largest process
+    peak_memory: int = 0  # bytes: parent's peak + each worker's peak (an upper bound)
 
     @property
     def partial(self) -> bool:
@@ -85,7 +85,7 @@ def tune_allocator() -> None:
     glibc serves every allocation above its mmap threshold (128 KiB at
     first) with a fresh ``mmap`` and returns it with ``munmap``, so a 64 Ki
     path wavefront faulted in every temporary again on every bounce: a fifth
-    of the render time went to the kernel (``benchmarks/bench_capacity.py``).
+    of the render time went to the kernel (``benchmarks/bench.py --section capacity``).
     Raising the thresholds makes the heap reuse those pages; the peak
     resident memory is unchanged.  No-op where glibc is absent.
     """
@@ -124,7 +124,7 @@ def run_task(units: list[Unit]):
         radiance = trace_whitted(cs, job, _WORKER["key"], _WORKER["capacity"], stats)
     else:
         radiance = trace_paths(cs, job, _WORKER["key"], _WORKER["capacity"], stats)
-    return job.reduce(radiance), stats, _peak_rss()
+    return job.reduce(radiance), stats, (os.getpid(), _peak_rss())
 
 
 def _peak_rss() -> int:
@@ -194,6 +194,7 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     film = Film(scene.width, scene.height)
     stats = RenderStats(seed=scene.render.seed, units_total=len(units), workers=workers, capacity=capacity)
     total_samples = sum(u.size for u in units)
+    worker_peaks: dict[int, int] = {}
 
     def merge(result) -> None:
         unit_results, trace_stats, peak = result
@@ -203,7 +204,8 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
             stats.units_done += 1
         stats.samples += trace_stats.samples
         stats.segments += trace_stats.segments
-        stats.peak_memory = max(stats.peak_memory, peak)
+        pid, rss = peak
+        worker_peaks[pid] = max(worker_peaks.get(pid, 0), rss)
         if progress is not None:
             progress(stats.samples, total_samples)
 
@@ -230,7 +232,9 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         finally:
             pool.terminate()
             pool.join()
-    stats.peak_memory = max(stats.peak_memory, _peak_rss())
+    parent = _peak_rss()
+    worker_peaks.pop(os.getpid(), None)  # inline tasks ran in this process
+    stats.peak_memory = parent + sum(worker_peaks.values())
     image = film.image()
     stats.elapsed = time.perf_counter() - start
     return RenderResult(image, stats)
