@@ -85,6 +85,7 @@ class SphereBVH:
 
         _fill(allocate(1), members)
         boxes = np.concatenate((np.array(lo).T, np.array(hi).T))  # (6, K): lo xyz, hi xyz
+        self.root_box = boxes[:, :1].copy()
         self.child = np.array(child, dtype=np.int64)
         self.first = np.array(first, dtype=np.int64)
         self.count = np.array(count, dtype=np.int64)
@@ -124,8 +125,15 @@ class SphereBVH:
             np.minimum.at(best_t, pr, t)
             found_ray.append(pr), found_t.append(t), found_sphere.append(sphere)
 
-        if self.child[0] < 0:  # the whole tree is one leaf
-            test_leaves(np.arange(n), np.zeros(n, dtype=np.int64))
+        if self.child[0] < 0:  # the whole tree is one leaf: test its box, then its spheres
+            with np.errstate(invalid="ignore"):
+                t0 = (self.root_box[:3] - origin) * inv
+                t1 = (self.root_box[3:] - origin) * inv
+            lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
+            near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
+            far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
+            entered = np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best_t))
+            test_leaves(entered, np.zeros(entered.size, dtype=np.int64))
             ray = np.empty(0, dtype=np.int64)
         else:
             ray, node = np.arange(n), np.zeros(n, dtype=np.int64)
