@@ -1,0 +1,275 @@
+"""wavefront benchmarks: time, throughput and peak memory, against baselines measured in the same run.
+
+    make bench                                 # everything, as quoted in the README
+    .venv/bin/python benchmarks/bench.py --section workloads --runs 5
+
+Sections
+--------
+workloads  W1 (three_spheres, 400x225, 100 spp) and W2 (final_scene, ~487
+           spheres, 400x225, 10 spp), both max_depth 50, with wavefront on all
+           cores and with Mitsuba 3 (``llvm_ad_rgb`` if Dr.Jit finds LLVM, else
+           ``scalar_rgb``, said in the output) on the same scene, built by
+           ``benchmarks/mitsuba_scene.py``.  Medians of ``--runs`` runs, each in
+           a fresh process; Mitsuba gets one unmeasured warm-up render per
+           process so its JIT compilation is not counted.
+scaling    time per path segment for 10, 100, 1,000 and 10,000 random spheres
+           (one core), with the brute-force intersector as the baseline where
+           it finishes in reasonable time.
+memory     peak memory of 3840x2160 renders at 1 and 4 samples per pixel next
+           to a 400x225 one: buffers come from the budget, not the image.
+capacity   W1 at 20 spp on one core for several wavefront sizes.
+
+Every number is measured by this script in the run that prints it; nothing is
+asserted.  Tables go to stdout and to ``benchmarks/results/``, with a plot of
+the scaling table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import statistics
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+PYTHON = sys.executable
+
+# --- helpers run in child processes -----------------------------------------
+
+WAVEFRONT_CHILD = textwrap.dedent("""
+    import json, sys
+    import wavefront, wavefront.accel as accel
+    args = json.loads(sys.argv[1])
+    if args.get("brute_force"):
+        accel.BVH_THRESHOLD = 1 << 62
+    scene = wavefront.load_scene(args["scene"]) if "scene" in args else None
+    if "random_spheres" in args:
+        sys.path.insert(0, args["bench_dir"])
+        from bench import random_sphere_scene
+        scene = random_sphere_scene(args["random_spheres"])
+    scene = scene.with_overrides(**args.get("overrides", {}))
+    r = wavefront.render_scene(scene, workers=args.get("workers"), chunk_size=args.get("chunk_size"))
+    s = r.stats
+    print(json.dumps({"elapsed": s.elapsed, "samples": s.samples, "segments": s.segments,
+                      "peak": s.peak_memory, "workers": s.workers}))
+""")
+
+MITSUBA_CHILD = textwrap.dedent("""
+    import json, resource, sys, time
+    args = json.loads(sys.argv[1])
+    import numpy as np, mitsuba as mi
+    mi.set_variant(args["variant"])
+    sys.path.insert(0, args["bench_dir"])
+    from mitsuba_scene import mitsuba_scene_dict
+    import wavefront
+    scene = wavefront.load_scene(args["scene"])
+    mscene = mi.load_dict(mitsuba_scene_dict(scene, mi))
+    spp = scene.render.samples_per_pixel
+    np.array(mi.render(mscene, spp=spp))  # warm-up: JIT compilation is not timed
+    t = time.perf_counter()
+    image = np.array(mi.render(mscene, spp=spp))
+    elapsed = time.perf_counter() - t
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(json.dumps({"elapsed": elapsed, "samples": scene.width * scene.height * spp, "peak": peak,
+                      "mean": float(image.mean())}))
+""")
+
+
+def child(code: str, args: dict, env=None) -> dict:
+    out = subprocess.run([PYTHON, "-c", code, json.dumps(args)], capture_output=True, text=True,
+                         cwd=ROOT, env=env, timeout=3600)
+    if out.returncode != 0:
+        raise RuntimeError(out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "child failed")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def median_runs(code, args, runs, env=None) -> dict:
+    results = [child(code, args, env) for _ in range(runs)]
+    keys = [k for k in results[0] if isinstance(results[0][k], (int, float))]
+    return {k: statistics.median(r[k] for r in results) for k in keys}
+
+
+def find_llvm() -> str | None:
+    if os.environ.get("DRJIT_LIBLLVM_PATH"):
+        return os.environ["DRJIT_LIBLLVM_PATH"]
+    for pattern in ("/usr/lib/*/libLLVM-19.so*", "/usr/lib/llvm-19/lib/libLLVM*.so*", "/usr/lib/*/libLLVM.so.19*",
+                    "/usr/lib/*/libLLVM-1[5-9].so"):
+        found = sorted(glob.glob(pattern))
+        if found:
+            return found[0]
+    return None
+
+
+def mitsuba_setup():
+    """(variant, env, note) or (None, None, reason)."""
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError:
+        return None, None, "Mitsuba 3 is not installed (pip install -e '.[bench]')"
+    env = dict(os.environ)
+    llvm = find_llvm()
+    if llvm:
+        env["DRJIT_LIBLLVM_PATH"] = llvm
+        try:
+            child("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); print('{}')", {}, env)
+            return "llvm_ad_rgb", env, f"Mitsuba 3 llvm_ad_rgb (LLVM: {llvm})"
+        except RuntimeError as e:
+            reason = f"llvm_ad_rgb failed ({e})"
+    else:
+        reason = "no libLLVM found (apt-get install libllvm19)"
+    return "scalar_rgb", env, f"Mitsuba 3 scalar_rgb, because {reason}"
+
+
+# --- scenes -------------------------------------------------------------------
+
+def random_sphere_scene(count: int, seed: int = 7):
+    """``count`` small spheres on a ground, at constant density, viewed from above at an angle."""
+    import numpy as np
+
+    from wavefront import Camera, Dielectric, Lambertian, Metal, Scene, Sky, Sphere
+
+    rng = np.random.default_rng(seed)
+    half = 0.75 * np.sqrt(count)  # ~0.44 spheres per unit area at any count
+    materials = {"ground": Lambertian((0.5, 0.5, 0.5)), "matte": Lambertian((0.6, 0.3, 0.2)),
+                 "metal": Metal((0.8, 0.8, 0.8), 0.2), "glass": Dielectric(1.5)}
+    kinds = rng.choice(["matte", "metal", "glass"], size=count, p=[0.8, 0.15, 0.05])
+    xz = rng.uniform(-half, half, (count, 2))
+    spheres = [Sphere((0.0, -1000.0, 0.0), 1000.0, "ground")]
+    spheres += [Sphere((float(x), 0.2, float(z)), 0.2, str(k)) for (x, z), k in zip(xz, kinds)]
+    camera = Camera(look_from=(0.0, 1.2 * half + 1, 1.6 * half + 2), look_at=(0.0, 0.0, 0.0), vfov=45)
+    return Scene(spheres=spheres, materials=materials, camera=camera, background=Sky(), name=f"random{count}")
+
+
+# --- sections -----------------------------------------------------------------
+
+def fmt_mib(b):
+    return f"{b / 2**20:.0f} MiB"
+
+
+def table(header, rows):
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    line = lambda r: "| " + " | ".join(str(x).ljust(w) for x, w in zip(r, widths)) + " |"  # noqa: E731
+    return "\n".join([line(header), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *map(line, rows)])
+
+
+def section_workloads(runs):
+    variant, env, note = mitsuba_setup()
+    rows, data = [], {}
+    for name, scene in (("W1", "scenes/three_spheres.yaml"), ("W2", "scenes/final_scene.yaml")):
+        w = median_runs(WAVEFRONT_CHILD, {"scene": scene}, runs)
+        data[name] = {"wavefront": w}
+        row = [name, f"wavefront ({int(w['workers'])} workers)", f"{w['elapsed']:.2f} s",
+               f"{w['samples'] / w['elapsed'] / 1e6:.2f} M", f"{w['segments'] / w['elapsed'] / 1e6:.2f} M",
+               fmt_mib(w["peak"])]
+        if variant:
+            m = median_runs(MITSUBA_CHILD, {"scene": scene, "variant": variant,
+                                            "bench_dir": str(ROOT / "benchmarks")}, runs, env)
+            data[name]["mitsuba"] = m
+            rows.append(row + [f"{w['elapsed'] / m['elapsed']:.2f}x"])
+            rows.append([name, variant, f"{m['elapsed']:.2f} s", f"{m['samples'] / m['elapsed'] / 1e6:.2f} M",
+                         "–", fmt_mib(m["peak"]), "1.00x"])
+        else:
+            rows.append(row + ["–"])
+    text = table(["workload", "renderer", "wall time", "samples/s", "path segments/s", "peak memory",
+                  "time / Mitsuba"], rows)
+    return f"Baseline: {note}. Medians of {runs} runs, each in a fresh process.\n\n{text}", data
+
+
+def section_scaling(runs):
+    counts = (10, 100, 1000, 10000)
+    overrides = {"width": 160, "height": 90, "samples_per_pixel": 4}
+    rows, data = [], {}
+    for n in counts:
+        args = {"random_spheres": n, "bench_dir": str(ROOT / "benchmarks"), "overrides": overrides, "workers": 1}
+        bvh = median_runs(WAVEFRONT_CHILD, args, runs)
+        per = bvh["elapsed"] / bvh["segments"] * 1e9
+        entry = {"auto_ns_per_segment": per}
+        brute_txt = "–"
+        if n <= 1000:
+            brute = median_runs(WAVEFRONT_CHILD, dict(args, brute_force=True), runs)
+            entry["brute_ns_per_segment"] = brute["elapsed"] / brute["segments"] * 1e9
+            brute_txt = f"{entry['brute_ns_per_segment']:.0f} ns"
+        data[n] = entry
+        rows.append([f"{n:,}", "brute force" if n < 64 else "BVH", f"{per:.0f} ns", brute_txt])
+    ratio = data[10000]["auto_ns_per_segment"] / data[100]["auto_ns_per_segment"]
+    text = table(["spheres", "intersector chosen", "time per path segment", "brute force (baseline)"], rows)
+    text += f"\n\nTime per segment at 10,000 spheres / at 100 spheres: {ratio:.2f}x"
+    data["ratio_10000_100"] = ratio
+    return ("One core, 160x90, 4 spp, max_depth 50, spheres of radius 0.2 at constant density on a ground "
+            f"sphere; medians of {runs} runs.\n\n{text}"), data
+
+
+def section_memory(runs):
+    rows, data = [], {}
+    for label, overrides in (("400x225, 4 spp", {"width": 400, "height": 225, "samples_per_pixel": 4}),
+                             ("3840x2160, 1 spp", {"width": 3840, "height": 2160, "samples_per_pixel": 1}),
+                             ("3840x2160, 4 spp", {"width": 3840, "height": 2160, "samples_per_pixel": 4})):
+        r = median_runs(WAVEFRONT_CHILD, {"scene": "scenes/three_spheres.yaml", "overrides": overrides}, 1)
+        data[label] = r
+        rows.append([label, f"{r['elapsed']:.1f} s", fmt_mib(r["peak"])])
+    text = table(["render (three_spheres, all cores)", "wall time", "peak memory"], rows)
+    return ("Peak memory is the parent's peak resident set plus each worker's (an upper bound: "
+            f"shared pages count twice).\n\n{text}"), data
+
+
+def section_capacity(runs):
+    rows, data = [], {}
+    for capacity in (4096, 16384, 65536, 262144):
+        r = median_runs(WAVEFRONT_CHILD, {"scene": "scenes/three_spheres.yaml", "workers": 1,
+                                          "chunk_size": capacity, "overrides": {"samples_per_pixel": 20}}, runs)
+        data[capacity] = r
+        rows.append([f"{capacity:,}", f"{r['elapsed']:.2f} s", f"{r['segments'] / r['elapsed'] / 1e6:.2f} M",
+                     fmt_mib(r["peak"])])
+    text = table(["paths in flight", "wall time", "path segments/s", "peak memory"], rows)
+    return f"W1 at 20 spp on one core; medians of {runs} runs.\n\n{text}", data
+
+
+def plot_scaling(data, path):
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    counts = [n for n in data if isinstance(n, int)]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.loglog(counts, [data[n]["auto_ns_per_segment"] for n in counts], "o-", label="wavefront (automatic)")
+    brute = [n for n in counts if "brute_ns_per_segment" in data[n]]
+    ax.loglog(brute, [data[n]["brute_ns_per_segment"] for n in brute], "s--", label="brute force")
+    ax.set_xlabel("spheres")
+    ax.set_ylabel("time per path segment (ns, one core)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    return True
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--section", choices=("all", "workloads", "scaling", "memory", "capacity"), default="all")
+    args = parser.parse_args(argv)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    sections = ("workloads", "scaling", "memory", "capacity") if args.section == "all" else (args.section,)
+    everything = {}
+    for name in sections:
+        print(f"\n## {name}\n", flush=True)
+        text, data = globals()[f"section_{name}"](args.runs)
+        print(text, flush=True)
+        (RESULTS / f"{name}.md").write_text(text + "\n")
+        everything[name] = data
+        if name == "scaling" and plot_scaling(data, RESULTS / "scaling.png"):
+            print(f"\nplot: {RESULTS / 'scaling.png'}")
+    (RESULTS / f"results-{args.section}.json").write_text(json.dumps(everything, indent=1, default=str) + "\n")
+
+
+if __name__ == "__main__":
+    main()
