@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import signal
 import sys
 import warnings
 
@@ -33,6 +34,16 @@ def _seed(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
     if not 0 <= value < 2**63:
         raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^63), got {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return value
 
 
@@ -65,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=_positive_int, help="processes (default: all cores); the image does not change")
     r.add_argument("--memory", type=_memory, help="memory budget for the render, e.g. 512M (default 1G)")
     r.add_argument("--chunk-size", type=_positive_int, help="paths in flight per worker (default: from --memory)")
+    r.add_argument("--checkpoint", metavar="FILE", help="save progress to FILE (.npz) periodically and on exit")
+    r.add_argument("--checkpoint-interval", type=_positive_float, default=30.0, metavar="SECONDS",
+                   help="seconds between checkpoints (default 30)")
+    r.add_argument("--resume", metavar="FILE", help="continue the render saved in checkpoint FILE")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     return parser
 
@@ -85,17 +100,28 @@ def main(argv: list[str] | None = None) -> int:
 
 def _render(args) -> int:
     from .output import OutputError, check_output_path, write_image
-    from .render import DEFAULT_MEMORY, render_scene
+    from .render import DEFAULT_MEMORY, CheckpointError, image_bytes, render_scene
     from .scenefile import SceneError, load_scene
 
+    memory = args.memory or DEFAULT_MEMORY
     try:
         check_output_path(args.output)
+        for path in (args.checkpoint, args.resume):
+            if path is not None and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
+                raise OutputError(f"{path}: directory does not exist")
+        if args.resume is not None and not os.path.isfile(args.resume):
+            raise OutputError(f"{args.resume}: no such checkpoint file")
         scene = load_scene(args.scene)
+        scene = scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
+                                     max_depth=args.max_depth, seed=args.seed)
+        needed = image_bytes(scene.width, scene.height)
+        if needed > memory:
+            raise OutputError(f"{scene.width}x{scene.height}: the image alone needs about "
+                              f"{needed / 2**20:,.0f} MiB, more than the memory budget of "
+                              f"{memory / 2**20:,.0f} MiB (--memory)")
     except (SceneError, OutputError) as e:
         print(f"wavefront: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    scene = scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
-                                 max_depth=args.max_depth, seed=args.seed)
 
     bar = None
     if not args.quiet and sys.stderr.isatty():
@@ -108,16 +134,34 @@ def _render(args) -> int:
         if bar is not None:
             bar.update(done - bar.n)
 
+    # Ctrl-C or SIGTERM asks the render to stop and keep what it has; a
+    # second Ctrl-C gives up at once.
+    stop = {"signal": None}
+
+    def request_stop(signum, frame):
+        if stop["signal"] is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        stop["signal"] = signum
+
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        result = render_scene(scene, workers=args.workers, memory=args.memory or DEFAULT_MEMORY,
-                              chunk_size=args.chunk_size, progress=progress)
+        result = render_scene(scene, workers=args.workers, memory=memory, chunk_size=args.chunk_size,
+                              progress=progress, should_stop=lambda: stop["signal"] is not None,
+                              checkpoint=args.checkpoint, checkpoint_interval=args.checkpoint_interval,
+                              resume=args.resume)
+    except CheckpointError as e:
+        print(f"wavefront: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         if bar is not None:
             bar.close()
     s = result.stats
     metadata = {"Software": "wavefront", "wavefront.scene": scene.name, "wavefront.seed": s.seed,
                 "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
-                "wavefront.partial": "yes" if s.partial else "no"}
+                "wavefront.partial": "yes" if s.partial else "no",
+                "wavefront.units": f"{s.units_done}/{s.units_total}"}
     try:
         write_image(args.output, result.image, metadata)
     except OSError as e:
@@ -125,6 +169,8 @@ def _render(args) -> int:
         return EXIT_BAD_INPUT
     if not args.quiet:
         print(summary_line(scene, s, args.output), file=sys.stderr)
+    if s.partial and stop["signal"] is not None:
+        return 128 + stop["signal"]  # the shell's convention for "ended by this signal"
     return 0
 
 

@@ -79,14 +79,19 @@ def write_image(path: str, image: np.ndarray, metadata: dict[str, str] | None = 
                 _write_png(f, image, metadata)
         if ext == ".exr":
             _write_exr(tmp, image, metadata)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
         raise
+
+
+def publish(tmp: str, path: str) -> None:
+    """Give a finished temporary file normal permissions and move it into place."""
+    os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, path)
 
 
 def _umask() -> int:

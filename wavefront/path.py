@@ -91,8 +91,13 @@ def kernels_present(table):
     return out
 
 
-def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None) -> np.ndarray:
-    """Radiance of every sample of ``job``; shape ``(3, job.size)``."""
+def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None,
+                should_stop=None) -> np.ndarray:
+    """Radiance of every sample of ``job``; shape ``(3, job.size)``.
+
+    ``should_stop`` is polled once per bounce; when it returns True the
+    trace returns early with incomplete radiance, which the caller discards.
+    """
     scene = cs.scene
     frame = scene.camera.frame(scene.width, scene.height)
     max_depth = scene.render.depth
@@ -113,7 +118,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             stop = min(job.size, next_slot + free)
             live = PathBatch.concat(live, camera_paths(cs, frame, key, job, next_slot, stop))
             next_slot = stop
-        if len(live) == 0:
+        if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         n = len(live)
         stats.segments += n

@@ -9,16 +9,21 @@ many paths are in flight, never which random numbers a path sees.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import multiprocessing
 import os
 import resource
 import signal
+import tempfile
 import time
+import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .film import Job, Unit, plan_units
+from .output import publish
 from .path import TraceStats, trace_paths
 from .sampling import scene_key
 from .scene import CompiledScene, Scene
@@ -32,6 +37,7 @@ MAX_CAPACITY = 1 << 16  # larger wavefronts fall out of cache and get slower
 MIN_CAPACITY = 256
 BASE_PROCESS_BYTES = 80 * MiB  # interpreter + NumPy + scene in each worker
 TASK_WAVEFRONTS = 4  # a task holds about this many wavefronts' samples
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass
@@ -56,6 +62,12 @@ class RenderStats:
 class RenderResult:
     image: np.ndarray  # (H, W, 3) float32, linear, row 0 at the top
     stats: RenderStats = field(default_factory=RenderStats)
+
+
+def image_bytes(width: int, height: int) -> int:
+    """Memory the image itself needs, whatever the budget: the film (float64
+    sums, uint32 counts), the float32 result and its 8-bit encoding."""
+    return width * height * (3 * 8 + 4 + 3 * 4 + 3)
 
 
 def capacity_for(memory: int, workers: int) -> int:
@@ -106,8 +118,11 @@ _WORKER: dict = {}
 
 
 def _init_worker(scene: Scene, capacity: int) -> None:
-    # The parent decides what an interrupt means; workers just get terminated.
+    # The parent decides what an interrupt means; workers just get
+    # terminated.  A forked worker inherits the parent's Python handlers, and
+    # one that caught SIGTERM would make Pool.terminate() wait forever.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     tune_allocator()
     _WORKER.update(compiled=scene.compile(), capacity=capacity, key=scene_key(scene.render.seed))
 
@@ -118,13 +133,22 @@ def run_task(units: list[Unit]):
     scene = cs.scene
     job = Job(units, scene.width, scene.render.samples_per_pixel)
     stats = TraceStats()
-    if scene.render.integrator == "whitted":
+    should_stop = _WORKER.get("should_stop")
+    # Overflow and NaN are handled by the film (non-finite samples are dropped
+    # and counted in the summary), so NumPy's warnings about them are noise.
+    with np.errstate(over="ignore", invalid="ignore"):
+        radiance = _trace(cs, job, stats, should_stop)
+    if should_stop is not None and should_stop():
+        raise RenderInterrupted  # the trace was cut short: this task's samples are incomplete
+    return job.reduce(radiance), stats, (os.getpid(), _peak_rss())
+
+
+def _trace(cs, job, stats, should_stop):
+    if cs.scene.render.integrator == "whitted":
         from .whitted import trace_whitted
 
-        radiance = trace_whitted(cs, job, _WORKER["key"], _WORKER["capacity"], stats)
-    else:
-        radiance = trace_paths(cs, job, _WORKER["key"], _WORKER["capacity"], stats)
-    return job.reduce(radiance), stats, (os.getpid(), _peak_rss())
+        return trace_whitted(cs, job, _WORKER["key"], _WORKER["capacity"], stats, should_stop)
+    return trace_paths(cs, job, _WORKER["key"], _WORKER["capacity"], stats, should_stop)
 
 
 def _peak_rss() -> int:
@@ -137,12 +161,13 @@ class Film:
     def __init__(self, width: int, height: int):
         self.width, self.height = width, height
         self.sum = np.zeros((3, width * height))
-        self.count = np.zeros(width * height, dtype=np.int64)
+        # uint32: 4 bytes a pixel instead of 8 (a 4K film is 33 MB less)
+        self.count = np.zeros(width * height, dtype=np.uint32)
 
     def add(self, unit: Unit, total: np.ndarray, count: np.ndarray) -> None:
         pixels = unit.pixel_index(self.width)
         self.sum[:, pixels] += total
-        self.count[pixels] += count
+        self.count[pixels] += count.astype(np.uint32)
 
     def image(self) -> np.ndarray:
         """Mean of each pixel's samples, (H, W, 3) float32; 0 where none."""
@@ -153,7 +178,8 @@ class Film:
             c = self.count[start:start + rows]
             with np.errstate(invalid="ignore", divide="ignore"):
                 mean = np.where(c > 0, self.sum[:, start:start + rows] / c, 0.0)
-            flat[start:start + rows] = mean.T
+            # a finite float64 mean can exceed float32: clamp, never store inf
+            flat[start:start + rows] = np.minimum(mean, FLOAT32_MAX).T
         return out
 
 
@@ -165,8 +191,57 @@ def render(scene: Scene, **options) -> np.ndarray:
     return render_scene(scene, **options).image
 
 
+class RenderInterrupted(Exception):
+    """Raised inside a task when the render was asked to stop."""
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file cannot be used to resume this render."""
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """Identifies everything that decides the image (scene, size, samples, seed)."""
+    return hashlib.sha256(repr(scene).encode()).hexdigest()
+
+
+def save_checkpoint(path: str, scene: Scene, film: Film, units_done: int) -> None:
+    """Write the film and the number of units merged so far, atomically."""
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".wavefront-checkpoint-", suffix=".npz", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, fingerprint=scene_fingerprint(scene), units_done=units_done,
+                     sum=film.sum, count=film.count)
+        publish(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def load_checkpoint(path: str, scene: Scene) -> tuple[Film, int]:
+    """The film and units done of a checkpoint made by the same render."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            fingerprint, units_done = str(data["fingerprint"]), int(data["units_done"])
+            film_sum, count = data["sum"], data["count"]
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:
+        raise CheckpointError(f"{path}: not a wavefront checkpoint ({e})") from None
+    if fingerprint != scene_fingerprint(scene):
+        raise CheckpointError(f"{path}: made by a different scene or different settings; "
+                              "resume with the same scene file and flags")
+    film = Film(scene.width, scene.height)
+    if film_sum.shape != film.sum.shape or count.shape != film.count.shape:
+        raise CheckpointError(f"{path}: image size does not match")
+    film.sum[...] = film_sum
+    film.count[...] = count
+    return film, units_done
+
+
 def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFAULT_MEMORY,
-                 chunk_size: int | None = None, progress=None, should_stop=None) -> RenderResult:
+                 chunk_size: int | None = None, progress=None, should_stop=None,
+                 checkpoint: str | None = None, checkpoint_interval: float = 30.0,
+                 resume: str | None = None) -> RenderResult:
     """Render with full control and statistics.
 
     Parameters
@@ -181,60 +256,109 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         show the image does not depend on it).
     progress : callable(samples_done: int, samples_total: int), optional
     should_stop : callable() -> bool, optional
-        Polled between tasks; when it returns True the render stops early and
-        returns the samples finished so far (``stats.partial``).
+        Polled several times a second; when it returns True the render stops
+        and returns the samples finished so far (``stats.partial``).
+    checkpoint : str, optional
+        File to save progress to every ``checkpoint_interval`` seconds and
+        when the render ends or stops.
+    resume : str, optional
+        A checkpoint of the same scene and settings to continue from; the
+        result is identical to an uninterrupted render.
+
+    Raises
+    ------
+    CheckpointError
+        If ``resume`` is not a checkpoint of this render.
     """
     start = time.perf_counter()
     tune_allocator()
     workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
-    capacity = chunk_size if chunk_size is not None else capacity_for(memory, workers)
+    capacity = chunk_size if chunk_size is not None else capacity_for(
+        memory - image_bytes(scene.width, scene.height), workers)
     units = plan_units(scene.width, scene.height, scene.render.samples_per_pixel)
-    tasks = plan_tasks(units, capacity)
-    workers = min(workers, len(tasks))
-    film = Film(scene.width, scene.height)
-    stats = RenderStats(seed=scene.render.seed, units_total=len(units), workers=workers, capacity=capacity)
+    if resume is not None:
+        film, first_unit = load_checkpoint(resume, scene)
+    else:
+        film, first_unit = Film(scene.width, scene.height), 0
+    # Units are merged strictly in order, so "the first k units" describes
+    # any partial state exactly; resuming merges the rest in the same order.
+    tasks = plan_tasks(units[first_unit:], capacity)
+    workers = max(1, min(workers, len(tasks)))
+    stats = RenderStats(seed=scene.render.seed, units_done=first_unit, units_total=len(units),
+                        workers=workers, capacity=capacity)
     total_samples = sum(u.size for u in units)
+    done_samples = sum(u.size for u in units[:first_unit])
     worker_peaks: dict[int, int] = {}
+    last_save = time.monotonic()
 
     def merge(result) -> None:
+        nonlocal last_save, done_samples
         unit_results, trace_stats, peak = result
         for unit, total, count, dropped in unit_results:
             film.add(unit, total, count)
             stats.dropped += dropped
             stats.units_done += 1
+            done_samples += unit.size
         stats.samples += trace_stats.samples
         stats.segments += trace_stats.segments
         pid, rss = peak
         worker_peaks[pid] = max(worker_peaks.get(pid, 0), rss)
         if progress is not None:
-            progress(stats.samples, total_samples)
+            progress(done_samples, total_samples)
+        if checkpoint is not None and time.monotonic() - last_save >= checkpoint_interval:
+            save_checkpoint(checkpoint, scene, film, stats.units_done)
+            last_save = time.monotonic()
 
-    stopped = lambda: should_stop is not None and should_stop()  # noqa: E731
-    if workers == 1:
-        saved = dict(_WORKER)
-        _WORKER.update(compiled=scene.compile(), capacity=capacity, key=scene_key(scene.render.seed))
-        try:
-            for task in tasks:
-                if stopped():
-                    break
-                merge(run_task(task))
-        finally:
-            _WORKER.clear()
-            _WORKER.update(saved)
-    else:
-        ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
-        pool = ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity))
-        try:
-            for result in pool.imap(run_task, tasks):
-                merge(result)
-                if stopped():
-                    break
-        finally:
-            pool.terminate()
-            pool.join()
+    stopped = lambda: should_stop is not None and bool(should_stop())  # noqa: E731
+    try:
+        if workers == 1:
+            _run_inline(scene, capacity, tasks, merge, stopped)
+        else:
+            _run_pool(scene, capacity, tasks, merge, stopped, workers)
+    except RenderInterrupted:
+        pass
+    if checkpoint is not None:
+        save_checkpoint(checkpoint, scene, film, stats.units_done)
     parent = _peak_rss()
     worker_peaks.pop(os.getpid(), None)  # inline tasks ran in this process
     stats.peak_memory = parent + sum(worker_peaks.values())
     image = film.image()
     stats.elapsed = time.perf_counter() - start
     return RenderResult(image, stats)
+
+
+POLL_SECONDS = 0.1  # how often a waiting parent checks for a stop request
+
+
+def _run_inline(scene, capacity, tasks, merge, stopped) -> None:
+    saved = dict(_WORKER)
+    _WORKER.update(compiled=scene.compile(), capacity=capacity, key=scene_key(scene.render.seed),
+                   should_stop=stopped)
+    try:
+        for task in tasks:
+            if stopped():
+                raise RenderInterrupted
+            merge(run_task(task))
+    finally:
+        _WORKER.clear()
+        _WORKER.update(saved)
+
+
+def _run_pool(scene, capacity, tasks, merge, stopped, workers) -> None:
+    ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity))
+    try:
+        results = pool.imap(run_task, tasks)  # in task order: the merge order is fixed
+        for _ in tasks:
+            while True:
+                if stopped():
+                    raise RenderInterrupted
+                try:
+                    result = results.next(timeout=POLL_SECONDS)
+                    break
+                except multiprocessing.TimeoutError:
+                    continue
+            merge(result)
+    finally:
+        pool.terminate()
+        pool.join()

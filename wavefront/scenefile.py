@@ -107,8 +107,9 @@ def read_yaml(data: bytes, source: str) -> Any:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise SceneError(source, "", f"not UTF-8 text (byte {e.start}: {data[e.start:e.start + 1]!r})") from None
-    loader = _Loader(text)
+    loader = None
     try:
+        loader = _Loader(text)  # the reader already rejects some characters here
         node = loader.get_single_node()
         if node is None:
             raise SceneError(source, "", "the file is empty")
@@ -122,7 +123,8 @@ def read_yaml(data: bytes, source: str) -> Any:
     except RecursionError:
         raise SceneError(source, "", "YAML nested too deeply") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def load_scene(path: str | os.PathLike) -> Scene:

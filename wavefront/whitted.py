@@ -62,8 +62,13 @@ def phong_local(cs: CompiledScene, point, normal, view, material) -> np.ndarray:
     return color
 
 
-def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None) -> np.ndarray:
-    """Radiance of every sample of ``job``; shape ``(3, job.size)``."""
+def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None,
+                  should_stop=None) -> np.ndarray:
+    """Radiance of every sample of ``job``; shape ``(3, job.size)``.
+
+    ``should_stop`` is polled once per bounce; when it returns True the
+    trace returns early with incomplete radiance, which the caller discards.
+    """
     scene = cs.scene
     frame = scene.camera.frame(scene.width, scene.height)
     max_depth = scene.render.depth
@@ -81,6 +86,8 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
     for start in range(0, job.size, chunk):
         live = camera_paths(cs, frame, key, job, start, min(job.size, start + chunk))
         while len(live):
+            if should_stop is not None and should_stop():
+                return radiance
             stats.segments += len(live)
             hits = cs.spheres.intersect(live.origin, live.direction)
             hit = hits.sphere_idx >= 0

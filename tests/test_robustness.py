@@ -1,0 +1,157 @@
+"""Interrupted, killed and resumed renders; limits; numerical edge cases."""
+
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from wavefront import Camera, Dielectric, Emissive, Lambertian, Metal, Scene, Solid, Sphere, render, render_scene
+from wavefront.output import read_png_metadata
+
+from .test_cli import run
+from .test_furnace import SCENES
+
+SLOW = SCENES / "slow_room.yaml"
+
+
+def start(*args):
+    return subprocess.Popen([sys.executable, "-m", "wavefront", "render", *map(str, args)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(path, timeout=60):
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert time.monotonic() < deadline, f"{path} never appeared"
+        time.sleep(0.05)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_stops_quickly_and_writes_the_partial_image(tmp_path, sig):
+    out, ck = tmp_path / "partial.png", tmp_path / "ck.npz"
+    # the first periodic checkpoint proves units are being merged
+    proc = start(SLOW, "-o", out, "--checkpoint", ck, "--checkpoint-interval", "0.01", "--workers", 2)
+    wait_for(ck)
+    sent = time.monotonic()
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=30)
+    assert time.monotonic() - sent < 3.0, "took too long to stop"
+    assert proc.returncode == 128 + sig, err
+    assert "Traceback" not in err and "PARTIAL" in err
+    meta = read_png_metadata(out)
+    assert meta["wavefront.partial"] == "yes"
+    done, total = map(int, meta["wavefront.units"].split("/"))
+    assert 0 < done < total
+
+
+def test_killed_checkpointed_render_resumes_to_the_identical_image(tmp_path):
+    full = tmp_path / "full.npy"
+    r = run("render", SLOW, "-o", full, "--spp", 64, "-q")
+    assert r.returncode == 0, r.stderr
+
+    ck, out = tmp_path / "ck.npz", tmp_path / "resumed.npy"
+    proc = start(SLOW, "-o", out, "--spp", 64, "--checkpoint", ck, "--checkpoint-interval", "0.01",
+                 "--workers", 1)
+    wait_for(ck)
+    time.sleep(0.3)
+    proc.kill()  # SIGKILL: nothing gets to clean up
+    proc.communicate()
+    assert not out.exists()
+    r = run("render", SLOW, "-o", out, "--spp", 64, "--resume", ck, "--workers", 2, "-q")
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_array_equal(np.load(out), np.load(full))
+
+
+def test_resume_with_other_settings_is_refused(tmp_path):
+    ck = tmp_path / "ck.npz"
+    assert run("render", SLOW, "-o", tmp_path / "a.npy", "--spp", 2, "--checkpoint", ck, "-q").returncode == 0
+    r = run("render", SLOW, "-o", tmp_path / "b.npy", "--spp", 3, "--resume", ck)
+    assert r.returncode == 2 and "different" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "b.npy").exists()
+    (tmp_path / "junk.npz").write_bytes(b"not a checkpoint")
+    r = run("render", SLOW, "-o", tmp_path / "c.npy", "--resume", tmp_path / "junk.npz")
+    assert r.returncode == 2 and "not a wavefront checkpoint" in r.stderr
+
+
+def test_oversized_output_is_refused_up_front(tmp_path):
+    t = time.monotonic()
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "huge.png", "--width", 200000, "--height", 200000)
+    assert r.returncode == 2 and "MiB" in r.stderr and "--memory" in r.stderr
+    assert time.monotonic() - t < 30 and not (tmp_path / "huge.png").exists()
+
+
+def test_memory_does_not_grow_with_samples_per_pixel():
+    scene = Scene(spheres=[Sphere((0, 0, -1), 0.5, "m")], materials={"m": Lambertian()}, width=64, height=36)
+    few = render_scene(scene.with_overrides(samples_per_pixel=2), workers=1, chunk_size=4096).stats
+    many = render_scene(scene.with_overrides(samples_per_pixel=200), workers=1, chunk_size=4096).stats
+    assert many.peak_memory < few.peak_memory + 32 * 2**20  # per-sample buffers are bounded by the task size
+
+
+# --- numerical edge cases ------------------------------------------------------
+
+def white_sky_scene(spheres, materials, camera, **kw):
+    return Scene(spheres=spheres, materials=materials, camera=camera, background=Solid((1, 1, 1)),
+                 width=kw.pop("width", 40), height=kw.pop("height", 30), **kw).with_overrides(
+        samples_per_pixel=kw.pop("spp", 4))
+
+
+@pytest.mark.parametrize("radius", [1e2, 1e3, 1e6])
+def test_huge_ground_has_no_acne(radius):
+    """Scattered rays can never re-hit a convex sphere, so under a white sky a
+    ground of albedo 0.5 shows exactly 0.5: any self-intersection (acne) would
+    darken a pixel towards 0.25."""
+    scene = white_sky_scene([Sphere((0, -radius, 0), radius, "g")], {"g": Lambertian((0.5, 0.5, 0.5))},
+                            Camera(look_from=(0, 1.5, 4), look_at=(0, 0, 0), vfov=60))
+    image = render(scene, workers=1)
+    ground = image[-10:]
+    np.testing.assert_array_equal(ground, np.float32(0.5))
+
+
+@pytest.mark.parametrize("radius", [1e-4, 1e-2])
+def test_tiny_sphere_next_to_a_huge_one_is_neither_lost_nor_acned(radius):
+    camera = Camera(look_from=(0, radius, 8 * radius), look_at=(0, radius, 0), vfov=30)
+    scene = white_sky_scene([Sphere((0, -1e6, 0), 1e6, "g"), Sphere((0, radius, 0), radius, "b")],
+                            {"g": Lambertian((0.5, 0.5, 0.5)), "b": Metal((0.5, 0.5, 0.5))}, camera)
+    image = render(scene, workers=1)
+    assert np.isfinite(image).all()
+    centre = image[15, 20]
+    assert centre.max() < 0.9, "the tiny sphere is missing"  # a hole would show the white sky
+
+
+def test_camera_at_the_centre_of_a_glass_sphere_sees_white():
+    """From the centre every ray meets the glass at normal incidence: no total
+    internal reflection, so every path leaves and the furnace stays white."""
+    scene = white_sky_scene([Sphere((0, 0, 0), 2, "glass")], {"glass": Dielectric(1.5)},
+                            Camera(look_from=(0, 0, 0), look_at=(0, 0, -1), vfov=90))
+    np.testing.assert_allclose(render(scene, workers=1), 1.0, atol=1e-6)
+
+
+def test_camera_inside_a_closed_lambertian_sphere_is_finite():
+    scene = Scene(spheres=[Sphere((0, 0, 0), 3, "wall"), Sphere((0, 2, 0), 0.5, "lamp")],
+                  materials={"wall": Lambertian((0.7, 0.7, 0.7)), "lamp": Emissive((4, 4, 4))},
+                  camera=Camera(look_from=(0, 0, 0), look_at=(0, 0, -1)), width=24, height=24,
+                  background=Solid((0, 0, 0))).with_overrides(samples_per_pixel=8)
+    image = render(scene, workers=1)
+    assert np.isfinite(image).all() and image.mean() > 0.1
+
+
+def test_grazing_rays_stay_finite():
+    """A sphere seen exactly edge-on at every pixel row: discriminants near 0."""
+    scene = white_sky_scene([Sphere((0, 0, 0), 1, "m")], {"m": Metal((0.9, 0.9, 0.9), 0.0)},
+                            Camera(look_from=(0, 1, 5), look_at=(0, 1, 0), vfov=1), width=64, height=64)
+    image = render(scene, workers=1)
+    assert np.isfinite(image).all()
+
+
+def test_albedo_above_one_and_blazing_lamps_stay_finite():
+    scene = Scene(spheres=[Sphere((0, 0, 0), 3, "wall"), Sphere((0, 2, 0), 0.5, "lamp")],
+                  materials={"wall": Lambertian((50.0, 50.0, 50.0)), "lamp": Emissive((5000, 5000, 5000))},
+                  camera=Camera(look_from=(0, 0, 0), look_at=(0, 0, -1)), width=16, height=16,
+                  background=Solid((0, 0, 0))).with_overrides(samples_per_pixel=4, max_depth=400)
+    result = render_scene(scene, workers=1)
+    assert np.isfinite(result.image).all()
+    # 50^400 overflows float64: those samples are dropped and counted, not written
+    assert result.stats.dropped > 0
