@@ -35,7 +35,7 @@ test: install-test
 # Mitsuba's llvm_ad_rgb variant needs Debian's libLLVM; without it the
 # benchmark falls back to scalar_rgb and says so.
 bench: install
-	$(BIN)/python -m pip install --quiet -e '.[bench]'
+	$(BIN)/python -m pip install --quiet -e '.[bench,distributed]'
 	@ls /usr/lib/*/libLLVM-19.so* >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
 	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19) >/dev/null 2>&1; } || \
 	  echo "note: libllvm19 not installed; Mitsuba will run as scalar_rgb"

@@ -18,6 +18,9 @@ scaling    time per path segment for 10, 100, 1,000 and 10,000 random spheres
 memory     peak memory of 3840x2160 renders at 1 and 4 samples per pixel next
            to a 400x225 one: buffers come from the budget, not the image.
 capacity   W1 at 20 spp on one core for several wavefront sizes.
+distributed  the final scene on Dask LocalClusters of 1 and 2 workers against
+           the plain local render (1 and 2 processes), and Dask's overhead per
+           task (cluster start-up excluded, one warm-up render each).
 
 Every number is measured by this script in the run that prints it; nothing is
 asserted.  Tables go to stdout and to ``benchmarks/results/``, with a plot of
@@ -230,6 +233,53 @@ def section_capacity(runs):
     return f"W1 at 20 spp on one core; medians of {runs} runs.\n\n{text}", data
 
 
+DASK_CHILD = textwrap.dedent("""
+    import json, sys, time
+    import wavefront
+    from wavefront.render import plan_tasks, plan_units, capacity_for, image_bytes, DEFAULT_MEMORY
+    args = json.loads(sys.argv[1])
+    scene = wavefront.load_scene(args["scene"]).with_overrides(**args.get("overrides", {}))
+    n = args["workers"]
+    executor = None
+    if args["dask"]:
+        from dask.distributed import Client, LocalCluster
+        from wavefront.distributed import dask_executor
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=50)
+        client = Client(cluster)
+        executor = dask_executor(client)
+    wavefront.render_scene(scene, workers=n, executor=executor)  # warm-up
+    times = []
+    for _ in range(args["runs"]):
+        r = wavefront.render_scene(scene, workers=n, executor=executor)
+        times.append(r.stats.elapsed)
+    capacity = capacity_for(DEFAULT_MEMORY - image_bytes(scene.width, scene.height), n)
+    tasks = len(plan_tasks(plan_units(scene.width, scene.height, scene.render.samples_per_pixel), capacity))
+    times.sort()
+    print(json.dumps({"elapsed": times[len(times) // 2], "tasks": tasks}))
+""")
+
+
+def section_distributed(runs):
+    try:
+        import dask.distributed  # noqa: F401
+    except ImportError:
+        return "Dask is not installed (pip install -e '.[distributed]'); skipped.", {}
+    args = {"scene": "scenes/final_scene.yaml", "runs": runs}
+    rows, data = [], {}
+    for label, dask, n in (("local, 1 process", False, 1), ("local, 2 processes", False, 2),
+                           ("Dask local:1", True, 1), ("Dask local:2", True, 2)):
+        data[label] = child(DASK_CHILD, dict(args, dask=dask, workers=n))
+    base = data["local, 1 process"]["elapsed"]
+    for label, r in data.items():
+        rows.append([label, f"{r['elapsed']:.2f} s", f"{base / r['elapsed']:.2f}x", r["tasks"]])
+    overhead = (data["Dask local:1"]["elapsed"] - base) / data["Dask local:1"]["tasks"]
+    data["overhead_per_task_s"] = overhead
+    text = table(["final_scene 400x225, 10 spp", "wall time", "speed-up vs 1 process", "tasks"], rows)
+    text += f"\n\nDask overhead per task (local:1 minus 1 process, divided by tasks): {overhead * 1e3:.1f} ms"
+    return f"Medians of {runs} renders after one warm-up, in one process per row.\n\n{text}", data
+
+
 def plot_scaling(data, path):
     try:
         import matplotlib
@@ -255,10 +305,12 @@ def plot_scaling(data, path):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--section", choices=("all", "workloads", "scaling", "memory", "capacity"), default="all")
+    parser.add_argument("--section", choices=("all", "workloads", "scaling", "memory", "capacity", "distributed"),
+                        default="all")
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    sections = ("workloads", "scaling", "memory", "capacity") if args.section == "all" else (args.section,)
+    sections = (("workloads", "scaling", "memory", "capacity", "distributed") if args.section == "all"
+                else (args.section,))
     everything = {}
     for name in sections:
         print(f"\n## {name}\n", flush=True)

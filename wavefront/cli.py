@@ -80,6 +80,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--checkpoint-interval", type=_positive_float, default=30.0, metavar="SECONDS",
                    help="seconds between checkpoints (default 30)")
     r.add_argument("--resume", metavar="FILE", help="continue the render saved in checkpoint FILE")
+    r.add_argument("--scheduler", metavar="ADDRESS",
+                   help="render on a Dask cluster: tcp://HOST:8786, or local:N to start N local workers")
+    r.add_argument("--frames", type=_positive_int, metavar="N",
+                   help="render a turntable of N frames around look_at; OUT names them with {frame}, "
+                        "e.g. spin_{frame:03d}.png")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     return parser
 
@@ -98,14 +103,35 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def frame_paths(output: str, frames: int | None) -> list[str]:
+    """Output path of each frame: ``{frame}`` formatted, or ``_0000`` before the extension."""
+    if frames is None:
+        return [output]
+    if "{frame" in output:
+        try:
+            return [output.format(frame=k) for k in range(frames)]
+        except (ValueError, KeyError, IndexError) as e:
+            raise ValueError(f"{output}: bad {{frame}} pattern ({e})") from None
+    stem, ext = os.path.splitext(output)
+    return [f"{stem}_{k:04d}{ext}" for k in range(frames)]
+
+
 def _render(args) -> int:
     from .output import OutputError, check_output_path, write_image
     from .render import DEFAULT_MEMORY, CheckpointError, image_bytes, render_scene
+    from .scene import turntable
     from .scenefile import SceneError, load_scene
 
     memory = args.memory or DEFAULT_MEMORY
     try:
-        check_output_path(args.output)
+        if args.frames is not None and (args.checkpoint or args.resume):
+            raise OutputError("--checkpoint and --resume work on single images, not --frames")
+        try:
+            outputs = frame_paths(args.output, args.frames)
+        except ValueError as e:
+            raise OutputError(str(e)) from None
+        for out in outputs:
+            check_output_path(out)
         for path in (args.checkpoint, args.resume):
             if path is not None and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
                 raise OutputError(f"{path}: directory does not exist")
@@ -123,16 +149,25 @@ def _render(args) -> int:
         print(f"wavefront: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
+    executor, client, workers = None, None, args.workers
+    if args.scheduler is not None:
+        from .distributed import SchedulerError, connect, dask_executor
+
+        try:
+            client = connect(args.scheduler)
+        except SchedulerError as e:
+            print(f"wavefront: error: {e}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        executor = dask_executor(client)
+        workers = max(1, len(client.scheduler_info().get("workers", {})))
+
+    scenes = [scene] if args.frames is None else [turntable(scene, k, args.frames) for k in range(args.frames)]
     bar = None
     if not args.quiet and sys.stderr.isatty():
         from tqdm import tqdm
 
-        bar = tqdm(total=scene.width * scene.height * scene.render.samples_per_pixel,
+        bar = tqdm(total=len(scenes) * scene.width * scene.height * scene.render.samples_per_pixel,
                    unit="samples", unit_scale=True, file=sys.stderr, leave=False)
-
-    def progress(done: int, total: int) -> None:
-        if bar is not None:
-            bar.update(done - bar.n)
 
     # Ctrl-C or SIGTERM asks the render to stop and keep what it has; a
     # second Ctrl-C gives up at once.
@@ -145,33 +180,49 @@ def _render(args) -> int:
 
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        result = render_scene(scene, workers=args.workers, memory=memory, chunk_size=args.chunk_size,
-                              progress=progress, should_stop=lambda: stop["signal"] is not None,
-                              checkpoint=args.checkpoint, checkpoint_interval=args.checkpoint_interval,
-                              resume=args.resume)
-    except CheckpointError as e:
-        print(f"wavefront: error: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        for k, (frame_scene, out) in enumerate(zip(scenes, outputs)):
+            offset = k * scene.width * scene.height * scene.render.samples_per_pixel
+
+            def progress(done: int, total: int) -> None:
+                if bar is not None:
+                    bar.update(offset + done - bar.n)
+
+            try:
+                result = render_scene(frame_scene, workers=workers, memory=memory, chunk_size=args.chunk_size,
+                                      progress=progress, should_stop=lambda: stop["signal"] is not None,
+                                      checkpoint=args.checkpoint, checkpoint_interval=args.checkpoint_interval,
+                                      resume=args.resume, executor=executor)
+            except CheckpointError as e:
+                print(f"wavefront: error: {e}", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            s = result.stats
+            metadata = {"Software": "wavefront", "wavefront.scene": scene.name, "wavefront.seed": s.seed,
+                        "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
+                        "wavefront.partial": "yes" if s.partial else "no",
+                        "wavefront.units": f"{s.units_done}/{s.units_total}"}
+            if args.frames is not None:
+                metadata["wavefront.frame"] = f"{k}/{args.frames}"
+            try:
+                write_image(out, result.image, metadata)
+            except OSError as e:
+                print(f"wavefront: error: {out}: cannot write: {e.strerror or e}", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            if not args.quiet:
+                if bar is not None:
+                    bar.clear()
+                print(summary_line(frame_scene, s, out), file=sys.stderr)
+            if stop["signal"] is not None:
+                return 128 + stop["signal"]  # the shell's convention for "ended by this signal"
+        return 0
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         if bar is not None:
             bar.close()
-    s = result.stats
-    metadata = {"Software": "wavefront", "wavefront.scene": scene.name, "wavefront.seed": s.seed,
-                "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
-                "wavefront.partial": "yes" if s.partial else "no",
-                "wavefront.units": f"{s.units_done}/{s.units_total}"}
-    try:
-        write_image(args.output, result.image, metadata)
-    except OSError as e:
-        print(f"wavefront: error: {args.output}: cannot write: {e.strerror or e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if not args.quiet:
-        print(summary_line(scene, s, args.output), file=sys.stderr)
-    if s.partial and stop["signal"] is not None:
-        return 128 + stop["signal"]  # the shell's convention for "ended by this signal"
-    return 0
+        if client is not None:
+            client.close()
+            if client.cluster is not None:
+                client.cluster.close()
 
 
 def summary_line(scene, s, output: str) -> str:

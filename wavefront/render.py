@@ -127,28 +127,31 @@ def _init_worker(scene: Scene, capacity: int) -> None:
     _WORKER.update(compiled=scene.compile(), capacity=capacity, key=scene_key(scene.render.seed))
 
 
-def run_task(units: list[Unit]):
-    """Render the units of one task; returns per-unit results and counters."""
-    cs: CompiledScene = _WORKER["compiled"]
+def execute(cs: CompiledScene, key, capacity: int, units: list[Unit], should_stop=None):
+    """Render the units of one task: the same work wherever it runs.
+
+    Returns per-unit results, trace counters and ``(pid, peak RSS)``.
+    """
     scene = cs.scene
     job = Job(units, scene.width, scene.render.samples_per_pixel)
     stats = TraceStats()
-    should_stop = _WORKER.get("should_stop")
     # Overflow and NaN are handled by the film (non-finite samples are dropped
     # and counted in the summary), so NumPy's warnings about them are noise.
     with np.errstate(over="ignore", invalid="ignore"):
-        radiance = _trace(cs, job, stats, should_stop)
+        if scene.render.integrator == "whitted":
+            from .whitted import trace_whitted
+
+            radiance = trace_whitted(cs, job, key, capacity, stats, should_stop)
+        else:
+            radiance = trace_paths(cs, job, key, capacity, stats, should_stop)
     if should_stop is not None and should_stop():
         raise RenderInterrupted  # the trace was cut short: this task's samples are incomplete
     return job.reduce(radiance), stats, (os.getpid(), _peak_rss())
 
 
-def _trace(cs, job, stats, should_stop):
-    if cs.scene.render.integrator == "whitted":
-        from .whitted import trace_whitted
-
-        return trace_whitted(cs, job, _WORKER["key"], _WORKER["capacity"], stats, should_stop)
-    return trace_paths(cs, job, _WORKER["key"], _WORKER["capacity"], stats, should_stop)
+def run_task(units: list[Unit]):
+    """:func:`execute` with the scene this process was initialised with."""
+    return execute(_WORKER["compiled"], _WORKER["key"], _WORKER["capacity"], units, _WORKER.get("should_stop"))
 
 
 def _peak_rss() -> int:
@@ -241,7 +244,7 @@ def load_checkpoint(path: str, scene: Scene) -> tuple[Film, int]:
 def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFAULT_MEMORY,
                  chunk_size: int | None = None, progress=None, should_stop=None,
                  checkpoint: str | None = None, checkpoint_interval: float = 30.0,
-                 resume: str | None = None) -> RenderResult:
+                 resume: str | None = None, executor=None) -> RenderResult:
     """Render with full control and statistics.
 
     Parameters
@@ -264,6 +267,11 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     resume : str, optional
         A checkpoint of the same scene and settings to continue from; the
         result is identical to an uninterrupted render.
+    executor : callable, optional
+        ``executor(scene, capacity, tasks, merge, stopped)`` runs the tasks
+        somewhere else (see :mod:`wavefront.distributed`) and calls ``merge``
+        with each task's result in task order.  Default: inline for one
+        worker, a local process pool for more.
 
     Raises
     ------
@@ -311,7 +319,9 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
 
     stopped = lambda: should_stop is not None and bool(should_stop())  # noqa: E731
     try:
-        if workers == 1:
+        if executor is not None:
+            executor(scene, capacity, tasks, merge, stopped)
+        elif workers == 1:
             _run_inline(scene, capacity, tasks, merge, stopped)
         else:
             _run_pool(scene, capacity, tasks, merge, stopped, workers)

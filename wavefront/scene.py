@@ -156,3 +156,19 @@ class CompiledScene:
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         return cls(scene, spheres, table, light_position, light_color)
+
+
+def turntable(scene: Scene, frame: int, frames: int) -> Scene:
+    """``scene`` with ``look_from`` turned ``frame / frames`` of a full circle
+    around the axis through ``look_at`` along ``vup``."""
+    cam = scene.camera
+    axis = np.asarray(cam.vup, dtype=np.float64)
+    axis /= np.linalg.norm(axis)
+    pivot = np.asarray(cam.look_at, dtype=np.float64)
+    v = np.asarray(cam.look_from, dtype=np.float64) - pivot
+    angle = 2.0 * np.pi * frame / frames
+    # Rodrigues' rotation formula
+    rotated = (v * np.cos(angle) + np.cross(axis, v) * np.sin(angle)
+               + axis * np.dot(axis, v) * (1.0 - np.cos(angle)))
+    look_from = tuple(float(x) for x in pivot + rotated)
+    return scene.replace(camera=dataclasses.replace(cam, look_from=look_from), name=f"{scene.name}#{frame}")

@@ -1,0 +1,81 @@
+"""Dask: the same image as a local render, even when a worker dies."""
+
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from wavefront import load_scene, render, render_scene
+
+from .test_cli import run
+from .test_furnace import SCENES
+
+distributed = pytest.importorskip("dask.distributed")
+
+from wavefront.distributed import dask_executor  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=50)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=40, samples_per_pixel=24)
+
+
+def test_two_dask_workers_match_the_single_process_render(client, scene):
+    local = render(scene, workers=1)
+    remote = render_scene(scene, chunk_size=2048, executor=dask_executor(client)).image
+    np.testing.assert_array_equal(remote, local)
+    # the scene was compiled once per worker, not once per task
+    tokens = client.run(lambda: __import__("wavefront.distributed").distributed._COMPILED.get("token"))
+    assert len(set(tokens.values())) == 1 and None not in tokens.values()
+
+
+def test_killing_a_worker_mid_render_still_gives_the_identical_image(client, scene):
+    local = render(scene, workers=1)
+    pids = list(client.run(os.getpid).values())
+    progressed = threading.Event()
+    result = {}
+
+    def go():
+        result["r"] = render_scene(scene, chunk_size=256, executor=dask_executor(client),
+                                   progress=lambda done, total: progressed.set())
+
+    thread = threading.Thread(target=go)
+    thread.start()
+    assert progressed.wait(60), "no unit completed"
+    os.kill(pids[0], signal.SIGKILL)
+    thread.join(180)
+    assert not thread.is_alive()
+    np.testing.assert_array_equal(result["r"].image, local)
+    assert not result["r"].stats.partial
+
+
+def test_unreachable_scheduler_is_a_clear_error(tmp_path):
+    start = time.monotonic()
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.png", "--scheduler", "tcp://127.0.0.1:9")
+    assert r.returncode == 2 and "cannot connect" in r.stderr and "Traceback" not in r.stderr
+    assert time.monotonic() - start < 20
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_cli_local_cluster_and_turntable_frames(tmp_path, scene):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "spin_{frame:02d}.npy", "--frames", 3,
+            "--width", 32, "--height", 20, "--spp", 2, "--scheduler", "local:2", "-q")
+    assert r.returncode == 0, r.stderr
+    frames = [np.load(tmp_path / f"spin_{k:02d}.npy") for k in range(3)]
+    single = render(load_scene(SCENES / "three_spheres.yaml").with_overrides(width=32, height=20, samples_per_pixel=2),
+                    workers=1)
+    np.testing.assert_array_equal(frames[0], single)  # frame 0 is the scene's own camera
+    assert not np.array_equal(frames[1], frames[0])
