@@ -22,9 +22,10 @@ from __future__ import annotations
 import numpy as np
 
 from .vecmath import dot, gather
-from .geometry import T_MIN, Hits, SphereSet, intersect_brute_force, nearest_root, sphere_roots
+from .geometry import T_MIN, Hits, SphereSet, intersect_brute_force, is_hit, nearest_root, sphere_roots
 
 LEAF_SIZE = 4
+LEAF_WAVES = 2  # nearest-first passes over a level's leaves before testing the rest at once
 OUTSIZED = 8.0  # radius above this many times the median: tested outside the tree
 MAX_OUTSIZED = 16
 
@@ -90,6 +91,15 @@ class SphereBVH:
         self.first = np.array(first, dtype=np.int64)
         self.count = np.array(count, dtype=np.int64)
         self.order = np.array(order, dtype=np.int64)
+        # each leaf's spheres in a fixed-width table, padded with unhittable NaN spheres
+        k = self.child.size
+        self.leaf_slot = np.full((LEAF_SIZE, k), -1, dtype=np.int64)
+        for j in range(LEAF_SIZE):
+            has = self.count > j
+            self.leaf_slot[j, has] = self.order[self.first[has] + j]
+        real = np.maximum(self.leaf_slot, 0)
+        self.leaf_center = np.where(self.leaf_slot >= 0, self.center[:, real], np.nan)  # (3, LEAF_SIZE, K)
+        self.leaf_cc_minus_r2 = np.where(self.leaf_slot >= 0, self.spheres.cc_minus_r2[real], np.nan)  # (LEAF_SIZE, K)
         # for each interior node its two children's boxes, side by side (12, K)
         left = np.maximum(self.child, 0)
         self.child_boxes = np.concatenate((boxes[:, left], boxes[:, left + (self.child >= 0)]))
@@ -112,18 +122,47 @@ class SphereBVH:
         found_ray, found_t, found_sphere = [], [], []
 
         def test_leaves(ray, node):
-            """Expand (ray, leaf) pairs to (ray, sphere) pairs and keep the hits."""
-            reps = self.count.take(node)
-            pr = np.repeat(ray, reps)
-            start = np.repeat(self.first.take(node) - np.cumsum(reps) + reps, reps)
-            sphere = self.order.take(start + np.arange(pr.size))
-            t = nearest_root(*sphere_roots(gather(self.center, sphere), self.spheres.cc_minus_r2.take(sphere),
-                                           gather(origin, pr), gather(direction, pr),
-                                           d_dot_o.take(pr), o_dot_o.take(pr)))
-            ok = np.flatnonzero((t < limit.take(pr)) & (t <= best_t.take(pr)))
-            pr, t, sphere = pr.take(ok), t.take(ok), sphere.take(ok)
-            np.minimum.at(best_t, pr, t)
-            found_ray.append(pr), found_t.append(t), found_sphere.append(sphere)
+            """Test (ray, leaf) pairs against all of each leaf's spheres at once.
+
+            The leaf table is padded to LEAF_SIZE with spheres that cannot be
+            hit (NaN), so one gather of the ray per pair and a (LEAF_SIZE, P)
+            broadcast replace a ragged expansion to (ray, sphere) pairs.
+            """
+            slot = np.take(self.leaf_slot, node, axis=1)  # (LEAF_SIZE, P) sphere indices, -1 = padding
+            sphere = np.maximum(slot, 0)
+            t = nearest_root(*sphere_roots(
+                np.take(self.leaf_center, node, axis=2), np.take(self.leaf_cc_minus_r2, node, axis=1),
+                gather(origin, ray)[:, None, :], gather(direction, ray)[:, None, :],
+                d_dot_o.take(ray), o_dot_o.take(ray)))
+            t_leaf = np.fmin.reduce(t, axis=0)  # padding spheres give NaN, which fmin skips
+            # lowest sphere index among equal nearest roots, as brute force picks
+            s_leaf = np.full(ray.size, np.iinfo(np.int64).max)
+            for j in range(LEAF_SIZE):
+                s_leaf = np.minimum(s_leaf, sphere[j] + (t[j] != t_leaf) * np.iinfo(np.int32).max)
+            ok = np.flatnonzero(is_hit(t_leaf) & (t_leaf < limit.take(ray)) & (t_leaf <= best_t.take(ray)))
+            pr, t_leaf, s_leaf = ray.take(ok), t_leaf.take(ok), s_leaf.take(ok)
+            np.minimum.at(best_t, pr, t_leaf)
+            found_ray.append(pr), found_t.append(t_leaf), found_sphere.append(s_leaf)
+
+        def test_leaves_nearest_first(ray, node, near):
+            """Leaves in waves: each ray's nearest leaf box first, then only the
+            leaves that still start before the best hit.  Breadth-first order
+            reaches all leaves of a level at once, so without this a ray would
+            test every leaf its line crosses, not just those before its hit."""
+            for _ in range(LEAF_WAVES - 1):
+                if ray.size == 0:
+                    return
+                nearest = np.full(n, np.inf)
+                np.minimum.at(nearest, ray, near)
+                first = near == nearest.take(ray)
+                now = np.flatnonzero(first)
+                test_leaves(ray.take(now), node.take(now))
+                later = np.flatnonzero(~first)
+                ray, node, near = ray.take(later), node.take(later), near.take(later)
+                still = np.flatnonzero(near <= best_t.take(ray))
+                ray, node, near = ray.take(still), node.take(still), near.take(still)
+            if ray.size:
+                test_leaves(ray, node)
 
         if self.child[0] < 0:  # the whole tree is one leaf: test its box, then its spheres
             with np.errstate(invalid="ignore"):
@@ -142,7 +181,7 @@ class SphereBVH:
         while ray.size:
             r, boxes = np.take(rays, ray, axis=1), np.take(self.child_boxes, node, axis=1)
             best = best_t.take(ray)
-            entered = []
+            entered, entry = [], []
             for side in (0, 1):
                 b = boxes[6 * side:6 * side + 6]
                 with np.errstate(invalid="ignore"):
@@ -151,14 +190,17 @@ class SphereBVH:
                 lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
                 near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
                 far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
-                entered.append(np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best)))  # <=: keep ties
+                keep = np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best))  # <=: keep ties
+                entered.append(keep)
+                entry.append(near.take(keep))
             left = self.child.take(node)
             ray = np.concatenate((ray.take(entered[0]), ray.take(entered[1])))
             node = np.concatenate((left.take(entered[0]), left.take(entered[1]) + 1))
+            near = np.concatenate(entry)
             is_leaf = self.count.take(node) > 0
             leaf_idx = np.flatnonzero(is_leaf)
             if leaf_idx.size:
-                test_leaves(ray.take(leaf_idx), node.take(leaf_idx))
+                test_leaves_nearest_first(ray.take(leaf_idx), node.take(leaf_idx), near.take(leaf_idx))
             inner = np.flatnonzero(~is_leaf)
             ray, node = ray.take(inner), node.take(inner)
 

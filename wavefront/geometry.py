@@ -116,18 +116,33 @@ def sphere_roots(center, cc_minus_r2, origin, direction, d_dot_o, o_dot_o):
     return h - sqrt_disc, h + sqrt_disc
 
 
+# Added to a root that may not be taken.  Branch-free: NumPy's ``where`` and
+# ``argmin`` cost ~15x an add on irregular masks (random 50/50 masks, 64 Ki
+# values); on real wavefronts, where most rays agree, the saving is within
+# the noise.  ``x + 0.0`` leaves every valid root bit-exact.
+NOT_A_HIT = 1e300
+
+
 def nearest_root(near, far):
-    """The first root past ``T_MIN``, or ``inf`` where there is none (or NaN)."""
-    t = np.where(near > T_MIN, near, far)
-    return np.where(t > T_MIN, t, np.inf)
+    """The first root past ``T_MIN``; ``>= NOT_A_HIT`` or NaN where there is none."""
+    near = near + (near <= T_MIN) * NOT_A_HIT
+    far = far + (far <= T_MIN) * NOT_A_HIT
+    return np.fmin(near, far)  # a NaN pair (a miss) stays NaN
+
+
+def is_hit(t):
+    return t < NOT_A_HIT  # false for NaN too
 
 
 def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -> Hits:
-    """Test every ray against every sphere, a block of spheres at a time."""
+    """Test every ray against every sphere, a block of spheres at a time.
+
+    The nearest sphere of a block is found with an ``fmin`` reduction and an
+    integer blend (lowest index wins a tie), not ``argmin``, for speed.
+    """
     n = origin.shape[1]
-    best_t = np.full(n, np.inf)
-    best_idx = np.full(n, -1, dtype=np.int32)
-    limit = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n,))
+    best_t = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n,)).copy()
+    best_idx = np.full(n, -1, dtype=np.int64)
     d_dot_o = dot(direction, origin)
     o_dot_o = dot(origin, origin)
     m = len(spheres)
@@ -136,12 +151,12 @@ def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -
         stop = min(m, start + block)
         t = nearest_root(*sphere_roots(spheres.center[:, start:stop, None], spheres.cc_minus_r2[start:stop, None],
                                        origin[:, None, :], direction[:, None, :], d_dot_o, o_dot_o))
-        if stop - start == 1:
-            j, tj = np.zeros(n, dtype=np.intp), t[0]
-        else:
-            j = np.argmin(t, axis=0)
-            tj = np.take_along_axis(t, j[None, :], axis=0)[0]
-        closer = (tj < best_t) & (tj < limit)
-        best_t = np.where(closer, tj, best_t)
-        best_idx = np.where(closer, j.astype(np.int32) + start, best_idx)
-    return Hits(best_t, best_idx)
+        t_block = np.fmin.reduce(t, axis=0)
+        # strict: an earlier block keeps a tie; false for NaN and for no hit
+        closer = (t_block < best_t) & (t_block < NOT_A_HIT)
+        for j in range(stop - start - 1, -1, -1):  # downwards, so the lowest index is written last
+            take = closer & (t[j] == t_block)
+            best_idx += take * (start + j - best_idx)
+        best_t = np.fmin(best_t, t_block + ~closer * NOT_A_HIT)
+    hit = best_idx >= 0
+    return Hits(np.where(hit, best_t, np.inf), best_idx.astype(np.int32))
