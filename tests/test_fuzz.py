@@ -49,15 +49,12 @@ BAD_VALUES = st.one_of(
 def mutated_documents(draw):
     doc = copy.deepcopy(VALID)
     target = draw(st.sampled_from(ALL_PATHS))
-    for p, parent, key in paths(doc):
-        if p == target:
-            break
+    parent, key = next((parent, key) for p, parent, key in paths(doc) if p == target)
     action = draw(st.sampled_from(["replace", "replace", "delete", "add_key"]))
     if action == "delete":
         del parent[key]
     elif action == "add_key" and isinstance(parent[key], dict):
-        parent[key][draw(st.sampled_from(["colour", "radius2", "Type", "x"]))] = 1
-        target = target  # error path lies under target
+        parent[key][draw(st.sampled_from(["colour", "radius2", "Type", "x"]))] = 1  # error lies under target
     else:
         parent[key] = draw(BAD_VALUES)
     return target, doc

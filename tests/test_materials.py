@@ -45,7 +45,8 @@ def test_metal_absorbs_exactly_the_rows_scattered_below_the_surface(fuzz, seed):
 
 def test_metal_fuzz_is_clamped_to_one_with_a_warning():
     assert Metal(fuzz=3.0).fuzz == 1.0
-    doc = {"materials": {"m": {"type": "metal", "fuzz": 2.5}}, "spheres": [{"center": [0, 0, -1], "radius": 1, "material": "m"}]}
+    doc = {"materials": {"m": {"type": "metal", "fuzz": 2.5}},
+           "spheres": [{"center": [0, 0, -1], "radius": 1, "material": "m"}]}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = scene_from_dict(doc)

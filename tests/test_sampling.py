@@ -10,8 +10,7 @@ import pytest
 from scipy import stats
 
 from wavefront.materials import scatter_lambertian
-from wavefront.sampling import (mix64, path_state, random_in_unit_disk, random_unit_vector,
-                                scene_key, uniform_pairs)
+from wavefront.sampling import mix64, path_state, random_in_unit_disk, random_unit_vector, scene_key, uniform_pairs
 from wavefront.vecmath import normalize
 
 N = 200_000

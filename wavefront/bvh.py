@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .vecmath import dot, gather
 from .geometry import T_MIN, Hits, SphereSet, intersect_brute_force, is_hit, nearest_root, sphere_roots
+from .vecmath import dot, gather
 
 LEAF_SIZE = 4
 LEAF_WAVES = 2  # nearest-first passes over a level's leaves before testing the rest at once

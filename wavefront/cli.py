@@ -183,7 +183,7 @@ def _render(args) -> int:
         for k, (frame_scene, out) in enumerate(zip(scenes, outputs)):
             offset = k * scene.width * scene.height * scene.render.samples_per_pixel
 
-            def progress(done: int, total: int) -> None:
+            def progress(done: int, total: int, offset=offset) -> None:
                 if bar is not None:
                     bar.update(offset + done - bar.n)
 

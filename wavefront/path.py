@@ -91,6 +91,15 @@ def kernels_present(table):
     return out
 
 
+def begin_trace(cs: CompiledScene, job: Job, stats: TraceStats | None):
+    """What every integrator starts from: the camera frame, a zeroed
+    per-sample radiance buffer and the counters (the job's samples counted)."""
+    scene = cs.scene
+    stats = stats if stats is not None else TraceStats()
+    stats.samples += job.size
+    return scene, scene.camera.frame(scene.width, scene.height), np.zeros((3, job.size)), stats
+
+
 def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None,
                 should_stop=None) -> np.ndarray:
     """Radiance of every sample of ``job``; shape ``(3, job.size)``.
@@ -98,16 +107,12 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     ``should_stop`` is polled once per bounce; when it returns True the
     trace returns early with incomplete radiance, which the caller discards.
     """
-    scene = cs.scene
-    frame = scene.camera.frame(scene.width, scene.height)
+    scene, frame, radiance, stats = begin_trace(cs, job, stats)
     max_depth = scene.render.depth
     table = cs.materials
     kernels = kernels_present(table)
     emissive = table.code("emissive")
     has_emissive = bool((table.kind == emissive).any())
-    radiance = np.zeros((3, job.size))
-    stats = stats if stats is not None else TraceStats()
-    stats.samples += job.size
 
     next_slot = 0
     live = camera_paths(cs, frame, key, job, 0, 0)

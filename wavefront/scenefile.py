@@ -296,9 +296,13 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
     camera = _camera(r, top.get("camera"))
     background = _background(r, top.get("background"))
 
-    mats = r.mapping(top.get("materials"), "materials", set(top.get("materials") or {}) if isinstance(top.get("materials"), dict) else set())
+    mats = top.get("materials") or {}
+    if not isinstance(mats, dict):
+        r.fail("materials", f"expected a mapping of names to materials, got {_describe(mats)}")
     materials = {}
     for key, spec in mats.items():
+        if not isinstance(key, str):
+            r.fail("materials", f"material names must be strings, got {_describe(key)}")
         materials[key] = _material(r, spec, f"materials.{key}")
 
     spheres_doc = top["spheres"]
@@ -360,9 +364,12 @@ def _camera(r: _Reader, value) -> Camera:
         look_from=look_from,
         look_at=look_at,
         vup=vup,
-        vfov=r.number(spec.get("vfov", d.vfov), "camera.vfov", low=0.0, low_open=True, high=180.0, high_open=True),
-        defocus_angle=r.number(spec.get("defocus_angle", 0.0), "camera.defocus_angle", low=0.0, high=180.0, high_open=True),
-        focus_dist=r.number(spec["focus_dist"], "camera.focus_dist", low=0.0, low_open=True) if "focus_dist" in spec else None,
+        vfov=r.number(spec.get("vfov", d.vfov), "camera.vfov",
+                      low=0.0, low_open=True, high=180.0, high_open=True),
+        defocus_angle=r.number(spec.get("defocus_angle", 0.0), "camera.defocus_angle",
+                               low=0.0, high=180.0, high_open=True),
+        focus_dist=(r.number(spec["focus_dist"], "camera.focus_dist", low=0.0, low_open=True)
+                    if "focus_dist" in spec else None),
     )
 
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from .batch import PathBatch
 from .film import Job
-from .path import TraceStats, camera_paths
+from .path import TraceStats, begin_trace, camera_paths
 from .scene import CompiledScene
 from .vecmath import dot, normalize, reflect, refract, schlick
 
@@ -69,14 +69,10 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
     ``should_stop`` is polled once per bounce; when it returns True the
     trace returns early with incomplete radiance, which the caller discards.
     """
-    scene = cs.scene
-    frame = scene.camera.frame(scene.width, scene.height)
+    scene, frame, radiance, stats = begin_trace(cs, job, stats)
     max_depth = scene.render.depth
     t = cs.materials
     emissive, dielectric = t.code("emissive"), t.code("dielectric")
-    radiance = np.zeros((3, job.size))
-    stats = stats if stats is not None else TraceStats()
-    stats.samples += job.size
 
     def add(slot, value):
         # a glass split gives one sample two rays in a batch: accumulate with add.at
