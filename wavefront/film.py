@@ -82,21 +82,21 @@ class Job:
         sizes = np.array([u.size for u in units], dtype=np.int64)
         self.offsets = np.concatenate(([0], np.cumsum(sizes)))
         self.size = int(self.offsets[-1])
-        self._pixels = [u.pixel_index(width) for u in units]
+        # per-unit geometry as arrays, so any run of slots maps to pixels in one pass
+        self._x0 = np.array([u.x0 for u in units], dtype=np.int64)
+        self._y0 = np.array([u.y0 for u in units], dtype=np.int64)
+        self._tile_width = np.array([u.x1 - u.x0 for u in units], dtype=np.int64)
+        self._pass_size = np.array([u.samples_per_pixel for u in units], dtype=np.int64)
+        self._pass_start = np.array([u.sample_start for u in units], dtype=np.int64)
 
     def samples(self, start: int, stop: int):
         """Pixel index and global sample id of slots ``start:stop``."""
         slots = np.arange(start, stop, dtype=np.int64)
         which = np.searchsorted(self.offsets, slots, side="right") - 1
-        pixel = np.empty(stop - start, dtype=np.int64)
-        sample = np.empty(stop - start, dtype=np.int64)
-        for k in np.unique(which):
-            unit = self.units[k]
-            rows = which == k
-            local = slots[rows] - self.offsets[k]
-            p, s = np.divmod(local, unit.samples_per_pixel)
-            pixel[rows] = self._pixels[k][p]
-            sample[rows] = unit.sample_start + s
+        p, s = np.divmod(slots - self.offsets.take(which), self._pass_size.take(which))
+        row, col = np.divmod(p, self._tile_width.take(which))
+        pixel = (self._y0.take(which) + row) * self.width + self._x0.take(which) + col
+        sample = self._pass_start.take(which) + s
         sample_id = pixel.astype(np.uint64) * np.uint64(self.samples_per_pixel) + sample.astype(np.uint64)
         return pixel, sample_id
 

@@ -52,6 +52,7 @@ class SphereSet:
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
         self.radius_squared = self.radius * self.radius
         self.cc_minus_r2 = (self.center * self.center).sum(axis=0) - self.radius_squared
+        self.inverse_radius = 1.0 / self.radius
 
     def __len__(self) -> int:
         return self.radius.shape[0]
@@ -80,9 +81,9 @@ class SphereSet:
         """
         d = direction
         point = origin + t * d
-        outward = (point - gather(self.center, sphere)) / self.radius.take(sphere)
+        outward = (point - gather(self.center, sphere)) * self.inverse_radius.take(sphere)
         front_face = dot(d, outward) < 0.0
-        normal = np.where(front_face, outward, -outward)
+        normal = outward * (2.0 * front_face - 1.0)  # flip to face the ray; cheaper than a (3, N) where
         return point, normal, front_face, sphere
 
 
