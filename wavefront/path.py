@@ -39,10 +39,6 @@ class TraceStats:
     segments: int = 0  # rays traced (camera rays + scattered rays)
     samples: int = 0
 
-    def add(self, other: TraceStats) -> None:
-        self.segments += other.segments
-        self.samples += other.samples
-
 
 def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int) -> PathBatch:
     """Stage 1: new paths for the job's slots ``start:stop``."""
@@ -161,13 +157,12 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         # 5. scatter, one kernel per kind present; a lone kind skips the gather
         new_direction = live.direction  # overwritten row by row below
         for kind_codes, kernel in kernels:
-            mask = np.isin(kind, kind_codes) if len(kind_codes) > 1 else kind == kind_codes[0]
             if len(kernels) == 1 and not has_emissive:
                 att, d, dead = kernel(table, material, live.direction, normal, front_face, u)
                 new_direction, absorbed = d, dead
                 live.throughput *= att
                 break
-            sel = np.flatnonzero(mask)
+            sel = np.flatnonzero(np.isin(kind, kind_codes) if len(kind_codes) > 1 else kind == kind_codes[0])
             if sel.size == 0:
                 continue
             att, d, dead = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
