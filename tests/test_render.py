@@ -1,5 +1,7 @@
 """Determinism and the render driver."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -70,3 +72,23 @@ def test_units_cover_every_pixel_sample_once():
 def test_capacity_comes_from_the_budget_not_the_image():
     assert capacity_for(1 << 30, 2) == capacity_for(1 << 30, 2)
     assert capacity_for(64 << 20, 1) < capacity_for(1 << 30, 1)
+
+
+def test_auto_precision_follows_the_scene_extent():
+    from wavefront.scene import precision_of
+
+    assert precision_of(load_scene(SCENES / "three_spheres.yaml")) == np.float32  # ground radius 100
+    assert precision_of(load_scene(SCENES / "final_scene.yaml")) == np.float64  # ground radius 1000
+    forced = load_scene(SCENES / "final_scene.yaml")
+    forced = forced.replace(render=dataclasses.replace(forced.render, precision="float32"))
+    assert precision_of(forced) == np.float32
+
+
+def test_float32_and_float64_renders_agree(scene):
+    """float32 uses the top 24 bits of the same random numbers, so the two
+    precisions trace the same paths and differ only by rounding (and, at
+    most, by a very rare path that a rounding difference sends elsewhere)."""
+    f32 = render(scene.replace(render=dataclasses.replace(scene.render, precision="float32")), workers=1)
+    f64 = render(scene.replace(render=dataclasses.replace(scene.render, precision="float64")), workers=1)
+    assert abs(f32.mean() - f64.mean()) < 1e-3 * f64.mean()
+    assert np.mean(np.abs(f32 - f64) > 1e-3) < 0.01

@@ -29,8 +29,8 @@ class Sky:
     def radiance(self, direction: np.ndarray) -> np.ndarray:
         """Colour seen along unit ``direction`` (3, N); returns (3, N)."""
         a = 0.5 * (direction[1] + 1.0)
-        bottom = np.asarray(self.bottom)[:, None]
-        top = np.asarray(self.top)[:, None]
+        bottom = np.asarray(self.bottom, dtype=direction.dtype)[:, None]
+        top = np.asarray(self.top, dtype=direction.dtype)[:, None]
         return bottom + a * (top - bottom)
 
 
@@ -49,7 +49,7 @@ class Solid:
     type: ClassVar[str] = "solid"
 
     def radiance(self, direction: np.ndarray) -> np.ndarray:
-        return np.broadcast_to(np.asarray(self.color, dtype=np.float64)[:, None], direction.shape)
+        return np.broadcast_to(np.asarray(self.color, dtype=direction.dtype)[:, None], direction.shape)
 
 
 Background = Sky | Solid

@@ -42,7 +42,7 @@ class SphereBVH:
         inside = np.ones(len(spheres), dtype=bool)
         inside[self.outsized] = False
         self.outsized_set = SphereSet(spheres.center[:, self.outsized], spheres.radius[self.outsized],
-                                      spheres.material_idx[self.outsized])
+                                      spheres.material_idx[self.outsized], spheres.dtype)
         self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
@@ -109,7 +109,7 @@ class SphereBVH:
 
     def intersect(self, origin, direction, t_max=np.inf) -> Hits:
         n = origin.shape[1]
-        limit = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n,))
+        limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         # outsized spheres first: their hits bound the traversal
         first = intersect_brute_force(self.outsized_set, origin, direction, t_max)
         best_t = np.minimum(first.t, limit)
@@ -134,7 +134,7 @@ class SphereBVH:
                 np.take(self.leaf_center, node, axis=2), np.take(self.leaf_cc_minus_r2, node, axis=1),
                 gather(origin, ray)[:, None, :], gather(direction, ray)[:, None, :],
                 d_dot_o.take(ray), o_dot_o.take(ray)))
-            t_leaf = np.fmin.reduce(t, axis=0)  # padding spheres give NaN, which fmin skips
+            t_leaf = t.min(axis=0)  # padding spheres are NaN: their roots come out inf
             # lowest sphere index among equal nearest roots, as brute force picks
             s_leaf = np.full(ray.size, np.iinfo(np.int64).max)
             for j in range(LEAF_SIZE):
@@ -152,7 +152,7 @@ class SphereBVH:
             for _ in range(LEAF_WAVES - 1):
                 if ray.size == 0:
                     return
-                nearest = np.full(n, np.inf)
+                nearest = np.full(n, np.inf, dtype=near.dtype)
                 np.minimum.at(nearest, ray, near)
                 first = near == nearest.take(ray)
                 now = np.flatnonzero(first)

@@ -46,13 +46,17 @@ class Hits:
 class SphereSet:
     """All spheres of a scene as arrays: ``center (3, M)``, ``radius (M,)``."""
 
-    def __init__(self, center: np.ndarray, radius: np.ndarray, material_idx: np.ndarray):
-        self.center = np.ascontiguousarray(center, dtype=np.float64).reshape(3, -1)
-        self.radius = np.ascontiguousarray(radius, dtype=np.float64)
+    def __init__(self, center: np.ndarray, radius: np.ndarray, material_idx: np.ndarray, dtype=np.float64):
+        center = np.asarray(center, dtype=np.float64).reshape(3, -1)
+        radius = np.asarray(radius, dtype=np.float64)
+        # derived terms in float64 first, then stored at the render's precision
+        self.dtype = np.dtype(dtype)
+        self.center = np.ascontiguousarray(center, dtype=dtype)
+        self.radius = np.ascontiguousarray(radius, dtype=dtype)
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
-        self.radius_squared = self.radius * self.radius
-        self.cc_minus_r2 = (self.center * self.center).sum(axis=0) - self.radius_squared
-        self.inverse_radius = 1.0 / self.radius
+        self.radius_squared = (radius * radius).astype(dtype)
+        self.cc_minus_r2 = ((center * center).sum(axis=0) - radius * radius).astype(dtype)
+        self.inverse_radius = (1.0 / radius).astype(dtype)
 
     def __len__(self) -> int:
         return self.radius.shape[0]
@@ -83,7 +87,8 @@ class SphereSet:
         point = origin + t * d
         outward = (point - gather(self.center, sphere)) * self.inverse_radius.take(sphere)
         front_face = dot(d, outward) < 0.0
-        normal = outward * (2.0 * front_face - 1.0)  # flip to face the ray; cheaper than a (3, N) where
+        sign = 2 * front_face.astype(outward.dtype) - 1  # flip to face the ray; cheaper than a (3, N) where
+        normal = outward * sign
         return point, normal, front_face, sphere
 
 
@@ -117,32 +122,27 @@ def sphere_roots(center, cc_minus_r2, origin, direction, d_dot_o, o_dot_o):
     return h - sqrt_disc, h + sqrt_disc
 
 
-# Added to a root that may not be taken.  Branch-free: NumPy's ``where`` and
-# ``argmin`` cost ~15x an add on irregular masks (random 50/50 masks, 64 Ki
-# values); on real wavefronts, where most rays agree, the saving is within
-# the noise.  ``x + 0.0`` leaves every valid root bit-exact.
-NOT_A_HIT = 1e300
-
-
 def nearest_root(near, far):
-    """The first root past ``T_MIN``; ``>= NOT_A_HIT`` or NaN where there is none."""
-    near = near + (near <= T_MIN) * NOT_A_HIT
-    far = far + (far <= T_MIN) * NOT_A_HIT
-    return np.fmin(near, far)  # a NaN pair (a miss) stays NaN
+    """The first root past ``T_MIN``, or ``inf`` where there is none.
+
+    A miss arrives as a NaN pair; NaN compares false, so it becomes ``inf``.
+    """
+    return np.fmin(np.where(near > T_MIN, near, np.inf), np.where(far > T_MIN, far, np.inf))
 
 
 def is_hit(t):
-    return t < NOT_A_HIT  # false for NaN too
+    return t < np.inf
 
 
 def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -> Hits:
     """Test every ray against every sphere, a block of spheres at a time.
 
-    The nearest sphere of a block is found with an ``fmin`` reduction and an
-    integer blend (lowest index wins a tie), not ``argmin``, for speed.
+    The nearest sphere of a block is found with a ``min`` reduction and an
+    integer blend (lowest index wins a tie) rather than ``argmin``, which is
+    a slow, branchy loop along the first axis.
     """
     n = origin.shape[1]
-    best_t = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n,)).copy()
+    best_t = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,)).copy()
     best_idx = np.full(n, -1, dtype=np.int64)
     d_dot_o = dot(direction, origin)
     o_dot_o = dot(origin, origin)
@@ -152,12 +152,12 @@ def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -
         stop = min(m, start + block)
         t = nearest_root(*sphere_roots(spheres.center[:, start:stop, None], spheres.cc_minus_r2[start:stop, None],
                                        origin[:, None, :], direction[:, None, :], d_dot_o, o_dot_o))
-        t_block = np.fmin.reduce(t, axis=0)
-        # strict: an earlier block keeps a tie; false for NaN and for no hit
-        closer = (t_block < best_t) & (t_block < NOT_A_HIT)
+        t_block = t.min(axis=0)
+        # strict: an earlier block keeps a tie; false where nothing was hit
+        closer = t_block < best_t
         for j in range(stop - start - 1, -1, -1):  # downwards, so the lowest index is written last
             take = closer & (t[j] == t_block)
             best_idx += take * (start + j - best_idx)
-        best_t = np.fmin(best_t, t_block + ~closer * NOT_A_HIT)
+        best_t = np.minimum(best_t, t_block)
     hit = best_idx >= 0
     return Hits(np.where(hit, best_t, np.inf), best_idx.astype(np.int32))

@@ -156,7 +156,7 @@ class MaterialTable:
     names: list[str] = field(default_factory=list)
 
     @classmethod
-    def build(cls, materials: list[Material], names: list[str] | None = None) -> MaterialTable:
+    def build(cls, materials: list[Material], names: list[str] | None = None, dtype=np.float64) -> MaterialTable:
         k = len(materials)
         t = cls(
             kind=np.array([KINDS.index(m.kind) for m in materials], dtype=np.int8),
@@ -186,6 +186,9 @@ class MaterialTable:
                 t.specular[:, i] = m.specular
                 t.shininess[i] = m.shininess
                 t.reflectivity[:, i] = m.reflectivity
+        for name in ("albedo", "fuzz", "refraction_index", "emission", "ambient", "specular", "shininess",
+                     "reflectivity"):
+            setattr(t, name, getattr(t, name).astype(dtype))
         return t
 
     def code(self, kind: str) -> int:
@@ -234,4 +237,4 @@ def scatter_dielectric(direction, normal, front_face, refraction_index, u):
         mirror, reflect(direction, normal), refract(direction, normal, ratio)
     )
     n = direction.shape[1]
-    return np.ones((3, n)), normalize(scattered), np.zeros(n, dtype=bool)
+    return np.ones((3, n), dtype=direction.dtype), normalize(scattered), np.zeros(n, dtype=bool)

@@ -47,12 +47,13 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int)
     u = np.concatenate((uniform_pairs(state, 0), uniform_pairs(state, 1)))
     if cs.scene.render.integrator == "whitted" and cs.scene.render.samples_per_pixel == 1:
         u[:2] = 0.5  # classic Whitted: one sample goes through the pixel centre
-    origin, direction = frame.generate_rays(pixel, u)
+    origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
+    origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
     return PathBatch(
         origin=origin,
         direction=direction,
-        throughput=np.ones((3, n)),
+        throughput=np.ones((3, n), dtype=origin.dtype),
         slot=np.arange(start, stop, dtype=np.int64),
         state=state,
         depth=np.zeros(n, dtype=np.int32),
@@ -143,7 +144,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             live.origin, live.direction, hits.t.take(hit_idx), hits.sphere_idx.take(hit_idx))
         material = cs.spheres.material_idx.take(sphere)
         kind = table.kind.take(material)
-        u = uniform_pairs_at(live.state, bounce_dimension(live.depth, 0))
+        u = uniform_pairs_at(live.state, bounce_dimension(live.depth, 0), cs.dtype)
         absorbed = np.zeros(len(live), dtype=bool)
 
         # 4. emitted

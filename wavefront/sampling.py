@@ -66,32 +66,40 @@ def bounce_dimension(depth: np.ndarray | int, k: int = 0) -> np.ndarray | int:
 
 
 _LOW32 = np.uint64(0xFFFFFFFF)
-_S32 = np.uint64(32)
+_LOW24 = np.uint64(0xFFFFFF)
+_S32, _S40, _S8 = np.uint64(32), np.uint64(40), np.uint64(8)
 _TO_UNIT_32 = 2.0**-32
+_TO_UNIT_24 = 2.0**-24
 
 
-def _split_pairs(z: np.ndarray) -> np.ndarray:
-    """Two uniforms in [0, 1) with 32 bits each from one 64-bit hash.
+def _split_pairs(z: np.ndarray, dtype=np.float64) -> np.ndarray:
+    """Two uniforms in [0, 1) from one 64-bit hash: 32 bits each in float64,
+    24 bits each in float32 (all a float32 can hold below 1, so 1 is never
+    reached).
 
     32 bits resolve directions far below a pixel; one hash per pair halves
     the cost of random numbers, the largest single item of a bounce after
     intersection.
     """
-    out = np.empty((2, z.shape[0]))
-    np.multiply(z >> _S32, _TO_UNIT_32, out=out[0])
-    np.multiply(z & _LOW32, _TO_UNIT_32, out=out[1])
+    out = np.empty((2, z.shape[0]), dtype=dtype)
+    if np.dtype(dtype) == np.float32:
+        np.multiply(z >> _S40, _TO_UNIT_24, out=out[0], casting="unsafe")
+        np.multiply((z >> _S8) & _LOW24, _TO_UNIT_24, out=out[1], casting="unsafe")
+    else:
+        np.multiply(z >> _S32, _TO_UNIT_32, out=out[0])
+        np.multiply(z & _LOW32, _TO_UNIT_32, out=out[1])
     return out
 
 
-def uniform_pairs(state: np.ndarray, pair: int) -> np.ndarray:
+def uniform_pairs(state: np.ndarray, pair: int, dtype=np.float64) -> np.ndarray:
     """Uniforms for dimensions ``2 pair`` and ``2 pair + 1``; shape (2, N)."""
     offset = np.uint64((0x9E3779B97F4A7C15 * (pair + 1)) & 0xFFFFFFFFFFFFFFFF)
-    return _split_pairs(mix64(state + offset))
+    return _split_pairs(mix64(state + offset), dtype)
 
 
-def uniform_pairs_at(state: np.ndarray, pair: np.ndarray) -> np.ndarray:
+def uniform_pairs_at(state: np.ndarray, pair: np.ndarray, dtype=np.float64) -> np.ndarray:
     """Like :func:`uniform_pairs` with a per-path pair index; shape (2, N)."""
-    return _split_pairs(mix64(state + _GOLDEN * (pair.astype(np.uint64) + np.uint64(1))))
+    return _split_pairs(mix64(state + _GOLDEN * (pair.astype(np.uint64) + np.uint64(1))), dtype)
 
 
 def _cos_2pi(u: np.ndarray) -> np.ndarray:
@@ -102,7 +110,7 @@ def _cos_2pi(u: np.ndarray) -> np.ndarray:
     ~1e-7 error is far below what a sampled direction needs (directions are
     renormalised after scattering anyway).
     """
-    return np.cos(((2.0 * np.pi) * u).astype(np.float32)).astype(np.float64)
+    return np.cos(((2.0 * np.pi) * u).astype(np.float32)).astype(u.dtype, copy=False)
 
 
 def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:

@@ -29,6 +29,13 @@ RGB = tuple[float, float, float]
 
 INTEGRATORS = ("path", "whitted")
 DEFAULT_MAX_DEPTH = {"path": 50, "whitted": 3}
+PRECISIONS = ("auto", "float32", "float64")
+# With hits accepted for t > 1e-3, float32 keeps self-intersection (acne) and
+# missed hits below ~1e-5 of bounces while every centre + radius and the
+# camera stay within this distance of the origin; beyond it (a ground of
+# radius 1000) the c term of the ray-sphere quadratic, ~|c|^2, loses too many
+# digits and "auto" renders in float64.
+FLOAT32_EXTENT = 256.0
 
 
 @dataclass(frozen=True)
@@ -59,6 +66,9 @@ class RenderSettings:
                                      recursion depth (``whitted``)
     ``seed``               0         the only source of randomness
     ``integrator``         path      ``path`` or ``whitted``
+    ``precision``          auto      ``float32``, ``float64``, or ``auto``:
+                                     float32 for scenes within 256 units of
+                                     the origin (faster), else float64
     =====================  ========  ===========================================
     """
 
@@ -66,6 +76,7 @@ class RenderSettings:
     max_depth: int | None = None
     seed: int = 0
     integrator: str = "path"
+    precision: str = "auto"
 
     @property
     def depth(self) -> int:
@@ -136,14 +147,16 @@ class CompiledScene:
     materials: MaterialTable
     light_position: np.ndarray  # (3, L)
     light_color: np.ndarray  # (3, L)
+    dtype: np.dtype
 
     @classmethod
     def build(cls, scene: Scene) -> CompiledScene:
         from .accel import build_intersector
 
+        dtype = precision_of(scene)
         names = list(scene.materials)
         index = {name: i for i, name in enumerate(names)}
-        table = MaterialTable.build([scene.materials[n] for n in names], names)
+        table = MaterialTable.build([scene.materials[n] for n in names], names, dtype)
         m = len(scene.spheres)
         center = np.array([s.center for s in scene.spheres], dtype=np.float64).reshape(m, 3).T
         radius = np.array([s.radius for s in scene.spheres], dtype=np.float64)
@@ -151,11 +164,23 @@ class CompiledScene:
             [s.material if isinstance(s.material, int) else index[s.material] for s in scene.spheres],
             dtype=np.int32,
         )
-        spheres = build_intersector(SphereSet(center, radius, material_idx))
+        spheres = build_intersector(SphereSet(center, radius, material_idx, dtype))
         nl = len(scene.lights)
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
-        return cls(scene, spheres, table, light_position, light_color)
+        return cls(scene, spheres, table, light_position, light_color, dtype)
+
+
+def precision_of(scene: Scene) -> np.dtype:
+    """The floating-point type the wavefront runs in (see ``FLOAT32_EXTENT``)."""
+    choice = scene.render.precision
+    if choice != "auto":
+        return np.dtype(choice)
+    points = [abs(np.asarray(scene.camera.look_from, dtype=np.float64)).max(),
+              abs(np.asarray(scene.camera.look_at, dtype=np.float64)).max()]
+    points += [np.linalg.norm(s.center) + s.radius for s in scene.spheres]
+    points += [np.linalg.norm(light.position) for light in scene.lights]
+    return np.dtype(np.float32 if max(points) <= FLOAT32_EXTENT else np.float64)
 
 
 def turntable(scene: Scene, frame: int, frames: int) -> Scene:

@@ -20,7 +20,7 @@ from .background import Sky, Solid
 from .camera import Camera
 from .geometry import Sphere
 from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
-from .scene import INTEGRATORS, PointLight, RenderSettings, Scene
+from .scene import INTEGRATORS, PRECISIONS, PointLight, RenderSettings, Scene
 
 MAX_FILE_BYTES = 16 * 1024 * 1024  # a scene of a million spheres is ~60 MB; refuse more than a sane hand/script file
 MAX_NODES = 2_000_000  # YAML nodes after alias expansion ("billion laughs" guard)
@@ -283,7 +283,7 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
     if width * height > MAX_PIXELS:
         r.fail("image", f"{width}x{height} is more than {MAX_PIXELS} pixels")
 
-    rs = r.mapping(top.get("render"), "render", {"samples_per_pixel", "max_depth", "seed", "integrator"})
+    rs = r.mapping(top.get("render"), "render", {"samples_per_pixel", "max_depth", "seed", "integrator", "precision"})
     integrator = r.string(rs.get("integrator", "path"), "render.integrator", INTEGRATORS)
     settings = RenderSettings(
         samples_per_pixel=r.integer(rs.get("samples_per_pixel", 100), "render.samples_per_pixel",
@@ -291,6 +291,7 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
         max_depth=r.integer(rs["max_depth"], "render.max_depth", low=1, high=MAX_DEPTH) if "max_depth" in rs else None,
         seed=r.integer(rs.get("seed", 0), "render.seed", low=0, high=MAX_SEED),
         integrator=integrator,
+        precision=r.string(rs.get("precision", "auto"), "render.precision", PRECISIONS),
     )
 
     camera = _camera(r, top.get("camera"))

@@ -47,7 +47,7 @@ CHUNK_FRACTION = 4
 def phong_local(cs: CompiledScene, point, normal, view, material) -> np.ndarray:
     """Ambient plus, for each light a shadow ray does not block, diffuse and specular."""
     t = cs.materials
-    color = t.ambient[:, material] * np.asarray(cs.scene.ambient)[:, None]
+    color = t.ambient[:, material] * np.asarray(cs.scene.ambient, dtype=cs.dtype)[:, None]
     diffuse, specular, shininess = t.albedo[:, material], t.specular[:, material], t.shininess[material]
     for k in range(cs.light_position.shape[1]):
         to_light = cs.light_position[:, k:k + 1] - point
