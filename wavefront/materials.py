@@ -23,7 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from .sampling import random_unit_vector
-from .vecmath import dot, normalize, reflect, refract, schlick
+from .vecmath import dot, gather, normalize, reflect, refract, scatter, schlick
 
 # A lambertian scatter direction n + random_unit_vector() vanishes when the
 # random vector is nearly -n; below this squared length fall back to n (the
@@ -232,9 +232,9 @@ def scatter_dielectric(direction, normal, front_face, refraction_index, u):
     cos_theta = np.minimum(-dot(direction, normal), 1.0)
     sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
     total_internal = ratio * sin_theta > 1.0
-    mirror = total_internal | (schlick(cos_theta, ratio) > u[0])
-    scattered = np.where(
-        mirror, reflect(direction, normal), refract(direction, normal, ratio)
-    )
+    mirror = np.flatnonzero(total_internal | (schlick(cos_theta, ratio) > u[0]))
+    scattered = refract(direction, normal, ratio)
+    # rows that mirror are few and random: write them by index, not with a where
+    scatter(scattered, mirror, reflect(gather(direction, mirror), gather(normal, mirror)))
     n = direction.shape[1]
     return np.ones((3, n), dtype=direction.dtype), normalize(scattered), np.zeros(n, dtype=bool)

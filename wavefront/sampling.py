@@ -129,8 +129,9 @@ def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     # cos(phi) from the library, sin(phi) as a signed square root: one
     # transcendental instead of two (sin >= 0 exactly when u2 <= 1/2)
     c = _cos_2pi(u2)
-    s = np.sqrt(np.maximum(0.0, 1.0 - c * c))
-    s = np.where(u2 <= 0.5, s, -s)
+    # copysign, not where: the mask is random, and a branchy where
+    # mispredicts on every other element
+    s = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - c * c)), 0.5 - u2)
     return np.stack((r * c, r * s, z))
 
 
@@ -138,5 +139,5 @@ def random_in_unit_disk(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """Points uniform in the unit disk (``r = sqrt(u1)``); shape ``(2, N)``."""
     r = np.sqrt(u1)
     c = _cos_2pi(u2)
-    s = np.sqrt(np.maximum(0.0, 1.0 - c * c))  # sin(phi) >= 0 exactly when u2 <= 1/2
-    return np.stack((r * c, r * np.where(u2 <= 0.5, s, -s)))
+    s = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - c * c)), 0.5 - u2)  # sin(phi) >= 0 when u2 <= 1/2
+    return np.stack((r * c, r * s))

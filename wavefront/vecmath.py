@@ -41,9 +41,8 @@ def normalize(v: np.ndarray) -> np.ndarray:
     degenerate vectors handle them explicitly before calling this.
     """
     n = length(v)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        inv = np.where(n > 0, 1.0 / n, 0.0)
-    return v * inv
+    # 0 * (1 / tiny) = 0 keeps a zero column zero, without a branchy where
+    return v * (1.0 / np.maximum(n, np.finfo(n.dtype).tiny))
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
