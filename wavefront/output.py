@@ -32,17 +32,26 @@ def output_format(path: str) -> str:
 
 
 def check_output_path(path: str) -> None:
-    """Fail early if ``path`` has an unknown extension or cannot be written."""
+    """Fail early if ``path`` has an unknown extension or cannot be written.
+
+    The directory is probed by creating and removing a temporary file there,
+    the same way the image will be written: permission bits alone do not
+    tell (root passes ``os.access`` on read-only mounts and in ``/proc``).
+    """
     output_format(path)
     directory = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(directory):
         raise OutputError(f"{path}: directory {directory} does not exist")
     if os.path.isdir(path):
         raise OutputError(f"{path}: is a directory")
-    if not os.access(directory, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: directory {directory} is not writable")
     if os.path.exists(path) and not os.access(path, os.W_OK):
         raise OutputError(f"{path}: file is not writable")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".wavefront-probe-", dir=directory)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write in {directory} ({e.strerror or e})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def encode_srgb8(image: np.ndarray) -> np.ndarray:
