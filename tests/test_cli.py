@@ -32,9 +32,10 @@ def test_writes_each_format_with_the_right_shape(tmp_path, ext):
     elif ext == "exr":
         import OpenEXR
 
-        with OpenEXR.File(str(out)) as f:
-            rgb = f.channels()["RGB"].pixels
-        assert rgb.shape == (18, 32, 3)
+        with OpenEXR.File(str(out), separate_channels=True) as f:
+            assert sorted(f.channels()) == ["B", "G", "R"]
+            assert f.channels()["R"].pixels.shape == (18, 32)
+            assert f.header()["wavefront.seed"] == "1"
     else:
         import imageio.v3 as iio
 

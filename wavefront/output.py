@@ -123,7 +123,7 @@ def _write_exr(path, image, metadata) -> None:
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    header.update({f"wavefront_{k}": v for k, v in metadata.items()})
+    header.update(metadata)  # the same keys as the PNG text chunks
     channels = {"RGB": np.ascontiguousarray(image, dtype=np.float32)}
     with OpenEXR.File(header, channels) as exr:
         exr.write(path)
