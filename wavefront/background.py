@@ -53,4 +53,3 @@ class Solid:
 
 
 Background = Sky | Solid
-BACKGROUND_TYPES = {cls.type: cls for cls in (Sky, Solid)}

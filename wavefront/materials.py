@@ -130,10 +130,7 @@ class Phong:
 
 
 Material = Lambertian | Metal | Dielectric | Emissive | Phong
-MATERIAL_TYPES: dict[str, type] = {
-    cls.kind: cls for cls in (Lambertian, Metal, Dielectric, Emissive, Phong)
-}
-KINDS = tuple(MATERIAL_TYPES)  # kind code = position in this tuple
+KINDS = tuple(cls.kind for cls in (Lambertian, Metal, Dielectric, Emissive, Phong))  # kind code = position
 
 
 @dataclass(slots=True)

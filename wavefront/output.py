@@ -130,7 +130,7 @@ def _write_exr(path, image, metadata) -> None:
 
 
 def read_png_metadata(path: str) -> dict[str, str]:
-    """Text chunks of a PNG (used by tests and ``--resume`` checks)."""
+    """Text chunks of a PNG (seed, scene, partial flag...); used by the tests."""
     from PIL import Image
 
     with Image.open(path) as im:

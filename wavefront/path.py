@@ -40,13 +40,18 @@ class TraceStats:
     samples: int = 0
 
 
-def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int) -> PathBatch:
-    """Stage 1: new paths for the job's slots ``start:stop``."""
+def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
+                 pixel_centres: bool = False) -> PathBatch:
+    """Stage 1: new paths for the job's slots ``start:stop``.
+
+    ``pixel_centres`` puts every sample at its pixel's centre instead of
+    jittering it (classic Whitted with one sample per pixel).
+    """
     pixel, sample_id = job.samples(start, stop)
     state = path_state(key, sample_id)
     u = np.concatenate((uniform_pairs(state, 0), uniform_pairs(state, 1)))
-    if cs.scene.render.integrator == "whitted" and cs.scene.render.samples_per_pixel == 1:
-        u[:2] = 0.5  # classic Whitted: one sample goes through the pixel centre
+    if pixel_centres:
+        u[:2] = 0.5
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
     origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
@@ -144,7 +149,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             live.origin, live.direction, hits.t.take(hit_idx), hits.sphere_idx.take(hit_idx))
         material = cs.spheres.material_idx.take(sphere)
         kind = table.kind.take(material)
-        u = uniform_pairs_at(live.state, bounce_dimension(live.depth, 0), cs.dtype)
+        u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
         absorbed = np.zeros(len(live), dtype=bool)
 
         # 4. emitted

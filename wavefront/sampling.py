@@ -60,9 +60,9 @@ def path_state(key: np.uint64, sample_id: np.ndarray) -> np.ndarray:
     return mix64(sample_id.astype(np.uint64, copy=False) ^ key)
 
 
-def bounce_dimension(depth: np.ndarray | int, k: int = 0) -> np.ndarray | int:
-    """Pair index of the ``k``-th pair drawn at bounce ``depth`` (one per bounce today)."""
-    return CAMERA_PAIRS + depth + k
+def bounce_dimension(depth: np.ndarray | int) -> np.ndarray | int:
+    """Index of the pair of uniforms a path draws at bounce ``depth``."""
+    return CAMERA_PAIRS + depth
 
 
 _LOW32 = np.uint64(0xFFFFFFFF)

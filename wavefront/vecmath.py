@@ -45,17 +45,6 @@ def normalize(v: np.ndarray) -> np.ndarray:
     return v * (1.0 / np.maximum(n, np.finfo(n.dtype).tiny))
 
 
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of 3-vectors (``(3,)`` or ``(3, N)``)."""
-    return np.stack(
-        (
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        )
-    )
-
-
 def reflect(v: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Mirror ``v`` about the unit normal ``n``: ``v - 2 (v.n) n``.
 

@@ -80,7 +80,9 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
 
     chunk = max(1, capacity // CHUNK_FRACTION)
     for start in range(0, job.size, chunk):
-        live = camera_paths(cs, frame, key, job, start, min(job.size, start + chunk))
+        # one sample per pixel goes through the pixel centre, as in the classic ray tracer
+        live = camera_paths(cs, frame, key, job, start, min(job.size, start + chunk),
+                            pixel_centres=scene.render.samples_per_pixel == 1)
         while len(live):
             if should_stop is not None and should_stop():
                 return radiance
