@@ -84,6 +84,34 @@ def test_auto_precision_follows_the_scene_extent():
     assert precision_of(forced) == np.float32
 
 
+def test_auto_precision_keeps_small_spheres_far_out_in_float64():
+    from wavefront.geometry import precision_for
+
+    assert precision_for([0.5, 100.0], 201.5) == np.float32  # three_spheres
+    assert precision_for([0.01], 100.0) == np.float64  # would move its silhouette by ~1e-3 of its radius
+    assert precision_for([0.2], 1200.0) == np.float64  # too far: positions round by ~1e-4
+
+
+def test_a_small_sphere_far_from_the_origin_is_intact_in_float32():
+    """The textbook discriminant lost (|oc| / r)^2 of its digits: in float32 this
+    ball, a hundred units out and seen from 0.06 away, did not appear at all."""
+    from wavefront import Solid
+
+    base = Scene(spheres=[Sphere((100.0, 0.0, 0.0), 0.01, "black")],
+                 materials={"black": Lambertian((0.0, 0.0, 0.0))},
+                 camera=Camera(look_from=(100.0, 0.0, 0.06), look_at=(100.0, 0.0, 0.0), vfov=30.0),
+                 width=48, height=48, background=Solid((1.0, 1.0, 1.0)))
+    images = []
+    for precision in ("float32", "float64"):
+        scene = base.replace(render=dataclasses.replace(base.render, samples_per_pixel=4, max_depth=1,
+                                                        precision=precision))
+        images.append(render(scene, workers=1))
+    covered = [(image[..., 0] < 0.5).sum() for image in images]
+    assert covered[1] > 500  # the ball fills much of the view
+    assert abs(covered[0] - covered[1]) <= 2
+    assert np.abs(images[0] - images[1]).mean() < 1e-3
+
+
 def test_float32_and_float64_renders_agree(scene):
     """float32 uses the top 24 bits of the same random numbers, so the two
     precisions trace the same paths and differ only by rounding (and, at

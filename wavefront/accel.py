@@ -9,10 +9,14 @@ from .geometry import SphereSet
 BVH_THRESHOLD = 64
 
 
-def build_intersector(spheres: SphereSet):
-    """The intersector for ``spheres``: brute force for few, a BVH for many."""
+def build_intersector(spheres: SphereSet, extent: float | None = None):
+    """The intersector for ``spheres``: brute force for few, a BVH for many.
+
+    ``extent`` bounds the distance from the origin of every ray origin (the
+    BVH pads its boxes by the rounding error of rays from that far).
+    """
     if len(spheres) < BVH_THRESHOLD:
         return spheres
     from .bvh import SphereBVH
 
-    return SphereBVH(spheres)
+    return SphereBVH(spheres, extent)

@@ -15,6 +15,21 @@ spheres (a ground of radius 1000 among balls of 0.2) are kept out of the tree
 and tested by brute force first: inside the tree their boxes would cover
 every node, and testing them first gives most rays a nearby hit that prunes
 every box beyond it.
+
+Traversal runs in float32 whatever the scene's precision: it only has to be
+conservative, never exact, because the spheres of every leaf it reaches are
+tested in the scene's precision.  Each ray is first clipped to the root box
+in the scene's precision and its origin moved to where it enters, so the
+float32 coordinates are never larger than the tree's own; boxes are padded by
+far more than the rounding of those coordinates and of the slab arithmetic
+(:data:`BOX_PAD`), so a box the exact ray enters is always entered.  float32
+halves the bytes every level gathers and doubles the SIMD width, which is
+most of what a level costs.
+
+The tree is stored once per ray octant (signs of the direction's
+components), with each child box's planes ordered nearest-first for that
+octant, so the slab test needs no min/max of its two planes per axis, and a
+pair's node index carries its octant with it.
 """
 
 from __future__ import annotations
@@ -22,9 +37,23 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import T_MIN, Hits, SphereSet, intersect_brute_force, is_hit, nearest_root, sphere_roots
-from .vecmath import dot, gather
+from .vecmath import gather
 
 LEAF_SIZE = 4
+# Rays traversed together: the (ray, node) pairs of one level and their
+# temporaries then stay in L2, which measured ~2.5x faster per pair than at
+# 65,536 rays (about 8 % on W2 end to end; see benchmarks/bench.py).
+TRAVERSAL_BATCH = 8192
+# Boxes grow on every side by the larger of two margins.  BOX_PAD of the
+# tree's extent covers float32 traversal: rounding of a shifted origin and of
+# (plane - origin) * (1 / d) moves a computed slab entry by at most ~2**-21 of
+# it.  ROUNDING_PAD machine epsilons of the farthest ray origin cover the
+# rounding of the leaf test itself, which finds a hit wherever a ray passes
+# within a few epsilons of |oc| of a sphere; a box must never cull such a hit,
+# or the two intersectors would disagree.  Both are invisible to culling
+# (1e-5 of a 12-unit scene).
+BOX_PAD = 2.0 ** -20
+ROUNDING_PAD = 64
 LEAF_WAVES = 2  # nearest-first passes over a level's leaves before testing the rest at once
 OUTSIZED = 8.0  # radius above this many times the median: tested outside the tree
 MAX_OUTSIZED = 16
@@ -33,16 +62,18 @@ MAX_OUTSIZED = 16
 class SphereBVH:
     """Same interface as :class:`~wavefront.geometry.SphereSet`."""
 
-    def __init__(self, spheres: SphereSet):
+    def __init__(self, spheres: SphereSet, extent: float | None = None):
+        """``extent``: how far from the origin rays may start (default: the
+        tree's own extent); boxes are padded by brute force's rounding there."""
         self.spheres = spheres
+        self.extent = extent
         self.center, self.radius = spheres.center, spheres.radius
         self.material_idx = spheres.material_idx
         order = np.argsort(-spheres.radius, kind="stable")[:MAX_OUTSIZED]
         self.outsized = np.sort(order[spheres.radius[order] > OUTSIZED * np.median(spheres.radius)])
         inside = np.ones(len(spheres), dtype=bool)
         inside[self.outsized] = False
-        self.outsized_set = SphereSet(spheres.center[:, self.outsized], spheres.radius[self.outsized],
-                                      spheres.material_idx[self.outsized], spheres.dtype)
+        self.outsized_set = spheres.subset(self.outsized)
         self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
@@ -86,7 +117,6 @@ class SphereBVH:
 
         _fill(allocate(1), members)
         boxes = np.concatenate((np.array(lo).T, np.array(hi).T))  # (6, K): lo xyz, hi xyz
-        self.root_box = boxes[:, :1].copy()
         self.child = np.array(child, dtype=np.int64)
         self.first = np.array(first, dtype=np.int64)
         self.count = np.array(count, dtype=np.int64)
@@ -99,52 +129,132 @@ class SphereBVH:
             self.leaf_slot[j, has] = self.order[self.first[has] + j]
         real = np.maximum(self.leaf_slot, 0)
         self.leaf_center = np.where(self.leaf_slot >= 0, self.center[:, real], np.nan)  # (3, LEAF_SIZE, K)
-        self.leaf_cc_minus_r2 = np.where(self.leaf_slot >= 0, self.spheres.cc_minus_r2[real], np.nan)  # (LEAF_SIZE, K)
-        # for each interior node its two children's boxes, side by side (12, K)
-        left = np.maximum(self.child, 0)
-        self.child_boxes = np.concatenate((boxes[:, left], boxes[:, left + (self.child >= 0)]))
+        self.leaf_radius_squared = np.where(self.leaf_slot >= 0, self.spheres.radius_squared[real], np.nan)  # (LEAF_SIZE, K)
+        self._build_traversal_tables(boxes.astype(np.float64))
 
+    def _build_traversal_tables(self, boxes: np.ndarray) -> None:
+        """float32 child boxes per octant: ``octant_boxes (12, 8K)``; ``boxes`` is (6, K) float64.
+
+        Column ``octant * K + node`` holds node's two children; rows are, per
+        child, the x, y, z planes the octant's rays enter through, then the
+        planes they leave through.  ``octant_child (2, 8K)`` gives the
+        children's columns in the same octant.
+        """
+        k = self.child.size
+        f32 = np.float32
+        tree_extent = float(np.abs(boxes).max())
+        rays_extent = tree_extent if self.extent is None else max(tree_extent, float(self.extent))
+        pad = max(BOX_PAD * tree_extent, ROUNDING_PAD * float(np.finfo(self.spheres.dtype).eps) * 2 * rays_extent)
+        pad += float(np.finfo(f32).tiny)
+        # the root box, padded alike, clips rays in the scene's precision
+        self.root_box = np.concatenate((boxes[:3, :1] - pad, boxes[3:, :1] + pad))
+        lo = np.nextafter((boxes[:3] - pad).astype(f32), f32(-np.inf))  # rounded outwards
+        hi = np.nextafter((boxes[3:] + pad).astype(f32), f32(np.inf))
+        left = np.maximum(self.child, 0)
+        right = left + (self.child >= 0)
+        tables = np.empty((2, 2, 3, 8, k), dtype=f32)  # child, enter/leave, axis, octant, node
+        for octant in range(8):
+            for axis in range(3):
+                negative = (octant >> axis) & 1
+                enter, leave = (hi, lo) if negative else (lo, hi)
+                for side, child in enumerate((left, right)):
+                    tables[side, 0, axis, octant] = enter[axis, child]
+                    tables[side, 1, axis, octant] = leave[axis, child]
+        self.octant_boxes = tables.reshape(12, 8 * k)
+        offset = np.arange(8)[:, None] * k
+        self.octant_child = np.stack(((left + offset).ravel(), (right + offset).ravel()))
+        self.octant_is_leaf = np.tile(self.count > 0, 8)
+        self.octant_node = np.tile(np.arange(k), 8)  # column -> node
 
     # -- traversal -----------------------------------------------------------
 
     def intersect(self, origin, direction, t_max=np.inf) -> Hits:
         n = origin.shape[1]
+        if n <= TRAVERSAL_BATCH:
+            return self._intersect(origin, direction, t_max)
+        t_max = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
+        parts = [self._intersect(origin[:, a:a + TRAVERSAL_BATCH], direction[:, a:a + TRAVERSAL_BATCH],
+                                 t_max[a:a + TRAVERSAL_BATCH]) for a in range(0, n, TRAVERSAL_BATCH)]
+        return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.sphere_idx for h in parts]))
+
+    def _intersect(self, origin, direction, t_max) -> Hits:
+        n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         # outsized spheres first: their hits bound the traversal
         first = intersect_brute_force(self.outsized_set, origin, direction, t_max)
         best_t = np.minimum(first.t, limit)
-        d_dot_o = dot(direction, origin)
-        o_dot_o = dot(origin, origin)
-        with np.errstate(divide="ignore"):
+        found = self._traverse(origin, direction, limit, best_t)  # lowers best_t to the tree's hits
+        best_idx = np.full(n, np.iinfo(np.int32).max, dtype=np.int64)
+        from_first = np.flatnonzero((first.sphere_idx >= 0) & (first.t == best_t))
+        best_idx[from_first] = self.outsized.take(first.sphere_idx.take(from_first))
+        if found:
+            ray, t, sphere = (np.concatenate(a) for a in zip(*found))
+            winner = np.flatnonzero(t == best_t.take(ray))
+            # ties go to the lowest sphere index, as in brute force
+            np.minimum.at(best_idx, ray.take(winner), sphere.take(winner))
+        hit = best_idx != np.iinfo(np.int32).max
+        return Hits(np.where(hit, best_t, np.inf), np.where(hit, best_idx, -1).astype(np.int32))
+
+    def _traverse(self, origin, direction, limit, best_t) -> list:
+        """Walk the tree for the rays that enter its root box.
+
+        Lowers ``best_t`` in place to each ray's nearest tree hit and returns
+        a list of ``(ray, t, sphere)`` candidate hits; per ray, those with
+        ``t == best_t`` are the nearest.
+        """
+        f32 = np.float32
+        with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / direction
-        # one table per side so each level gathers once: rows o, 1/d and lo, hi
-        rays = np.concatenate((origin, inv))
-        found_ray, found_t, found_sphere = [], [], []
+            t0 = (self.root_box[:3] - origin) * inv
+            t1 = (self.root_box[3:] - origin) * inv
+        lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
+        near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
+        far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
+        ray_ids = np.flatnonzero((near <= far) & (far >= T_MIN) & (near <= best_t))
+        if ray_ids.size == 0:
+            return []
+        # from here on per-ray arrays are indexed by position in ray_ids
+        o, d = gather(origin, ray_ids), gather(direction, ray_ids)
+        nearest, limit = best_t.take(ray_ids), limit.take(ray_ids)
+        # The traversal's ray starts where it enters the root box, so its t
+        # is the true t minus `shift`; no box behind that point holds a hit,
+        # which is why box entries are clamped at 0 below.
+        shift = np.maximum(near.take(ray_ids), 0.0)
+        with np.errstate(over="ignore"):  # 1/d beyond float32 becomes inf, which the slab test handles
+            rays = np.concatenate(((o + shift * d).astype(f32), gather(inv, ray_ids).astype(f32)))
+        to_beat = np.empty(ray_ids.size, dtype=f32)  # nearest - shift, rounded up
+
+        def update_to_beat(rows):
+            to_beat[rows] = np.nextafter((nearest.take(rows) - shift.take(rows)).astype(f32), f32(np.inf))
+
+        update_to_beat(np.arange(ray_ids.size))
+        found = []
 
         def test_leaves(ray, node):
             """Test (ray, leaf) pairs against all of each leaf's spheres at once.
 
             The leaf table is padded to LEAF_SIZE with spheres that cannot be
             hit (NaN), so one gather of the ray per pair and a (LEAF_SIZE, P)
-            broadcast replace a ragged expansion to (ray, sphere) pairs.
+            broadcast replace a ragged expansion to (ray, sphere) pairs.  The
+            arithmetic is brute force's, in the scene's precision.
             """
             slot = np.take(self.leaf_slot, node, axis=1)  # (LEAF_SIZE, P) sphere indices, -1 = padding
             sphere = np.maximum(slot, 0)
             t = nearest_root(*sphere_roots(
-                np.take(self.leaf_center, node, axis=2), np.take(self.leaf_cc_minus_r2, node, axis=1),
-                gather(origin, ray)[:, None, :], gather(direction, ray)[:, None, :],
-                d_dot_o.take(ray), o_dot_o.take(ray)))
+                np.take(self.leaf_center, node, axis=2), np.take(self.leaf_radius_squared, node, axis=1),
+                gather(o, ray)[:, None, :], gather(d, ray)[:, None, :]))
             t_leaf = t.min(axis=0)  # padding spheres are NaN: their roots come out inf
             # lowest sphere index among equal nearest roots, as brute force picks
             s_leaf = np.full(ray.size, np.iinfo(np.int64).max)
             for j in range(LEAF_SIZE):
                 s_leaf = np.minimum(s_leaf, sphere[j] + (t[j] != t_leaf) * np.iinfo(np.int32).max)
-            ok = np.flatnonzero(is_hit(t_leaf) & (t_leaf < limit.take(ray)) & (t_leaf <= best_t.take(ray)))
-            pr, t_leaf, s_leaf = ray.take(ok), t_leaf.take(ok), s_leaf.take(ok)
-            np.minimum.at(best_t, pr, t_leaf)
-            found_ray.append(pr), found_t.append(t_leaf), found_sphere.append(s_leaf)
+            ok = np.flatnonzero(is_hit(t_leaf) & (t_leaf < limit.take(ray)) & (t_leaf <= nearest.take(ray)))
+            ray, t_leaf, s_leaf = ray.take(ok), t_leaf.take(ok), s_leaf.take(ok)
+            np.minimum.at(nearest, ray, t_leaf)
+            update_to_beat(ray)
+            found.append((ray_ids.take(ray), t_leaf, s_leaf))
 
-        def test_leaves_nearest_first(ray, node, near):
+        def test_leaves_nearest_first(ray, node, entry):
             """Leaves in waves: each ray's nearest leaf box first, then only the
             leaves that still start before the best hit.  Breadth-first order
             reaches all leaves of a level at once, so without this a ray would
@@ -152,65 +262,43 @@ class SphereBVH:
             for _ in range(LEAF_WAVES - 1):
                 if ray.size == 0:
                     return
-                nearest = np.full(n, np.inf, dtype=near.dtype)
-                np.minimum.at(nearest, ray, near)
-                first = near == nearest.take(ray)
-                now = np.flatnonzero(first)
-                test_leaves(ray.take(now), node.take(now))
-                later = np.flatnonzero(~first)
-                ray, node, near = ray.take(later), node.take(later), near.take(later)
-                still = np.flatnonzero(near <= best_t.take(ray))
-                ray, node, near = ray.take(still), node.take(still), near.take(still)
+                closest = np.full(ray_ids.size, np.inf, dtype=f32)
+                np.minimum.at(closest, ray, entry)
+                now = entry == closest.take(ray)
+                test_leaves(ray.compress(now), node.compress(now))
+                later = np.flatnonzero(~now)
+                ray, node, entry = ray.take(later), node.take(later), entry.take(later)
+                still = np.flatnonzero(entry <= to_beat.take(ray))
+                ray, node, entry = ray.take(still), node.take(still), entry.take(still)
             if ray.size:
                 test_leaves(ray, node)
 
-        if self.child[0] < 0:  # the whole tree is one leaf: test its box, then its spheres
-            with np.errstate(invalid="ignore"):
-                t0 = (self.root_box[:3] - origin) * inv
-                t1 = (self.root_box[3:] - origin) * inv
-            lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
-            near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
-            far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
-            entered = np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best_t))
-            test_leaves(entered, np.zeros(entered.size, dtype=np.int64))
-            ray = np.empty(0, dtype=np.int64)
-        else:
-            ray, node = np.arange(n), np.zeros(n, dtype=np.int64)
+        ray = np.arange(ray_ids.size)
+        if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
+            test_leaves(ray, np.zeros(ray.size, dtype=np.int64))
+            ray = ray[:0]
+        octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2)
+        node = octant * self.child.size  # the root's column in each ray's octant
+        zero = f32(0)
         # (ray, interior node) pairs whose box the ray enters; both children's
         # boxes are tested at once so each level gathers the ray data once
         while ray.size:
-            r, boxes = np.take(rays, ray, axis=1), np.take(self.child_boxes, node, axis=1)
-            best = best_t.take(ray)
-            entered, entry = [], []
-            for side in (0, 1):
-                b = boxes[6 * side:6 * side + 6]
-                with np.errstate(invalid="ignore"):
-                    t0 = (b[:3] - r[:3]) * r[3:]
-                    t1 = (b[3:] - r[:3]) * r[3:]
-                lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
-                near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
-                far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
-                keep = np.flatnonzero((near <= far) & (far > T_MIN) & (near <= best))  # <=: keep ties
-                entered.append(keep)
-                entry.append(near.take(keep))
-            left = self.child.take(node)
-            ray = np.concatenate((ray.take(entered[0]), ray.take(entered[1])))
-            node = np.concatenate((left.take(entered[0]), left.take(entered[1]) + 1))
-            near = np.concatenate(entry)
-            is_leaf = self.count.take(node) > 0
-            leaf_idx = np.flatnonzero(is_leaf)
-            if leaf_idx.size:
-                test_leaves_nearest_first(ray.take(leaf_idx), node.take(leaf_idx), near.take(leaf_idx))
+            pairs = ray.size
+            r = np.take(rays, ray, axis=1)
+            t = np.take(self.octant_boxes, node, axis=1).reshape(2, 2, 3, pairs)  # child, enter/leave, axis
+            t -= r[:3]
+            t *= r[3:]
+            entry = np.fmax(np.fmax(np.fmax(t[:, 0, 0], t[:, 0, 1]), t[:, 0, 2]), zero)
+            leave = np.fmin(np.fmin(np.fmin(t[:, 1, 0], t[:, 1, 1]), t[:, 1, 2]), to_beat.take(ray))
+            keep = np.flatnonzero(entry <= leave)  # <=: keep ties; left children first, then right
+            node = np.take(self.octant_child, node, axis=1).take(keep)
+            ray = np.concatenate((ray, ray)).take(keep)
+            entry = entry.take(keep)
+            is_leaf = self.octant_is_leaf.take(node)
+            leaf = np.flatnonzero(is_leaf)
+            if leaf.size:
+                test_leaves_nearest_first(ray.take(leaf), self.octant_node.take(node.take(leaf)), entry.take(leaf))
             inner = np.flatnonzero(~is_leaf)
             ray, node = ray.take(inner), node.take(inner)
-
-        best_idx = np.full(n, np.iinfo(np.int32).max, dtype=np.int64)
-        from_first = np.flatnonzero((first.sphere_idx >= 0) & (first.t == best_t))
-        best_idx[from_first] = self.outsized.take(first.sphere_idx.take(from_first))
-        if found_ray:
-            pr, t, sphere = (np.concatenate(a) for a in (found_ray, found_t, found_sphere))
-            winner = np.flatnonzero(t == best_t.take(pr))
-            # ties go to the lowest sphere index, as in brute force
-            np.minimum.at(best_idx, pr.take(winner), sphere.take(winner))
-        hit = best_idx != np.iinfo(np.int32).max
-        return Hits(np.where(hit, best_t, np.inf), np.where(hit, best_idx, -1).astype(np.int32))
+        best_t[ray_ids] = nearest
+        return found

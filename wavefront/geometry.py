@@ -18,9 +18,28 @@ from .vecmath import dot, gather
 
 T_MIN = 1e-3  # skip self-intersection at the ray's own origin (shadow acne)
 
+# float32 is accurate enough when every point a ray can start from or reach
+# (sphere extents, the camera, lights) lies within FLOAT32_EXTENT of the
+# origin and no sphere is smaller than FLOAT32_MIN_RADIUS of that extent.
+# Positions then round by at most ~3e-5, far below T_MIN, so surfaces stay
+# free of acne (a ground of radius 1000 does not fit); and with
+# :func:`sphere_roots`' error of ``eps |oc| / r`` of a radius, silhouettes
+# move by at most ~1e-4 of the smallest sphere's radius.
+FLOAT32_EXTENT = 256.0
+FLOAT32_MIN_RADIUS = 1e-3
+
 # Elements of one (spheres x rays) temporary; bounds the memory of brute force
 # and keeps blocks in cache.
 BLOCK_ELEMENTS = 1 << 18
+
+
+def precision_for(radius: np.ndarray, extent: float) -> np.dtype:
+    """float32 where it is accurate enough for these radii within ``extent``
+    of the origin (see ``FLOAT32_EXTENT``), else float64."""
+    radius = np.asarray(radius, dtype=np.float64)
+    small = radius.min() if radius.size else np.inf
+    fits = extent <= FLOAT32_EXTENT and small >= FLOAT32_MIN_RADIUS * extent
+    return np.dtype(np.float32 if fits else np.float64)
 
 
 @dataclass(frozen=True)
@@ -55,11 +74,21 @@ class SphereSet:
         self.radius = np.ascontiguousarray(radius, dtype=dtype)
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
         self.radius_squared = (radius * radius).astype(dtype)
-        self.cc_minus_r2 = ((center * center).sum(axis=0) - radius * radius).astype(dtype)
         self.inverse_radius = (1.0 / radius).astype(dtype)
 
     def __len__(self) -> int:
         return self.radius.shape[0]
+
+    def subset(self, idx: np.ndarray) -> SphereSet:
+        """The spheres ``idx``, with the derived terms copied rather than
+        recomputed from rounded centres, so a float32 subset intersects
+        bit for bit as the whole set does."""
+        part = object.__new__(SphereSet)
+        part.dtype = self.dtype
+        for name in ("center", "radius", "material_idx", "radius_squared", "inverse_radius"):
+            value = getattr(self, name)
+            setattr(part, name, np.ascontiguousarray(value[..., idx]))
+        return part
 
     def intersect(self, origin: np.ndarray, direction: np.ndarray, t_max=np.inf) -> Hits:
         """Nearest hit with ``T_MIN < t < t_max`` for every ray.
@@ -92,31 +121,40 @@ class SphereSet:
         return point, normal, front_face, sphere
 
 
-def sphere_roots(center, cc_minus_r2, origin, direction, d_dot_o, o_dot_o):
+def sphere_roots(center, radius_squared, origin, direction):
     """Both ray parameters where unit-direction rays meet spheres (broadcasting).
 
-    With ``|d| = 1`` the quadratic's half-b is ``h = d.c - d.o`` and its c is
-    ``|c|^2 - r^2 - 2 c.o + |o|^2``.  Splitting the terms this way lets the
-    per-ray (``d.o``, ``|o|^2``) and per-sphere (``|c|^2 - r^2``) parts be
-    computed once per bounce instead of once per ray-sphere pair, roughly
-    halving the work of the pairwise stage.  In float64 the cancellation in
-    the c term costs about ``1e-16 |c|^2`` absolute, far below ``T_MIN`` for
-    spheres up to ~1e6 from the origin (see the README's limits).  Both the
-    brute-force and the BVH intersectors call this with the same operands,
-    so they agree bit for bit.
+    With ``oc = c - o`` and ``|d| = 1`` the roots are ``h -/+ sqrt(r^2 - |l|^2)``
+    where ``h = d.oc`` and ``l = oc - h d`` is the offset of the sphere's
+    centre from the ray's line (Haines et al., "Precision Improvements for
+    Ray/Sphere Intersection", Ray Tracing Gems, 2019).  The textbook
+    discriminant ``h^2 - (|oc|^2 - r^2)`` subtracts two numbers of size
+    ``|oc|^2`` to get one of size ``r^2``, so a small sphere far from the ray's
+    origin loses ``(|oc| / r)^2`` of its digits: in float32 a ball of radius
+    0.01 a hundred units away vanished.  Here the error is ``eps |oc| / r`` of
+    the radius.  Both the brute-force and the BVH intersectors call this with
+    the same operands, so they agree bit for bit.
 
     A miss (negative discriminant) yields NaN roots rather than a separate
     mask: every comparison with NaN is false, so :func:`nearest_root` turns
     them into ``inf`` with no extra pass over the pairs.  Returns
     ``(near, far)``.
     """
-    h = direction[0] * center[0] + direction[1] * center[1] + direction[2] * center[2]
-    h -= d_dot_o
-    co = origin[0] * center[0] + origin[1] * center[1] + origin[2] * center[2]
-    c_term = cc_minus_r2 - 2.0 * co
-    c_term += o_dot_o
-    disc = h * h
-    disc -= c_term
+    ox = center[0] - origin[0]
+    oy = center[1] - origin[1]
+    oz = center[2] - origin[2]
+    h = direction[0] * ox
+    h += direction[1] * oy
+    h += direction[2] * oz
+    ox -= h * direction[0]  # now l
+    oy -= h * direction[1]
+    oz -= h * direction[2]
+    ox *= ox
+    oy *= oy
+    oz *= oz
+    disc = radius_squared - ox
+    disc -= oy
+    disc -= oz
     with np.errstate(invalid="ignore"):
         sqrt_disc = np.sqrt(disc)
     return h - sqrt_disc, h + sqrt_disc
@@ -144,14 +182,12 @@ def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -
     n = origin.shape[1]
     best_t = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,)).copy()
     best_idx = np.full(n, -1, dtype=np.int64)
-    d_dot_o = dot(direction, origin)
-    o_dot_o = dot(origin, origin)
     m = len(spheres)
     block = max(1, min(m, BLOCK_ELEMENTS // max(n, 1)))
     for start in range(0, m, block):
         stop = min(m, start + block)
-        t = nearest_root(*sphere_roots(spheres.center[:, start:stop, None], spheres.cc_minus_r2[start:stop, None],
-                                       origin[:, None, :], direction[:, None, :], d_dot_o, o_dot_o))
+        t = nearest_root(*sphere_roots(spheres.center[:, start:stop, None], spheres.radius_squared[start:stop, None],
+                                       origin[:, None, :], direction[:, None, :]))
         t_block = t.min(axis=0)
         # strict: an earlier block keeps a tie; false where nothing was hit
         closer = t_block < best_t

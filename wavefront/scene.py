@@ -22,7 +22,7 @@ import numpy as np
 
 from .background import Background, Sky
 from .camera import Camera
-from .geometry import Sphere, SphereSet
+from .geometry import Sphere, SphereSet, precision_for
 from .materials import Material, MaterialTable
 
 RGB = tuple[float, float, float]
@@ -30,12 +30,6 @@ RGB = tuple[float, float, float]
 INTEGRATORS = ("path", "whitted")
 DEFAULT_MAX_DEPTH = {"path": 50, "whitted": 3}
 PRECISIONS = ("auto", "float32", "float64")
-# With hits accepted for t > 1e-3, float32 keeps self-intersection (acne) and
-# missed hits below ~1e-5 of bounces while every centre + radius and the
-# camera stay within this distance of the origin; beyond it (a ground of
-# radius 1000) the c term of the ray-sphere quadratic, ~|c|^2, loses too many
-# digits and "auto" renders in float64.
-FLOAT32_EXTENT = 256.0
 
 
 @dataclass(frozen=True)
@@ -164,23 +158,28 @@ class CompiledScene:
             [s.material if isinstance(s.material, int) else index[s.material] for s in scene.spheres],
             dtype=np.int32,
         )
-        spheres = build_intersector(SphereSet(center, radius, material_idx, dtype))
+        spheres = build_intersector(SphereSet(center, radius, material_idx, dtype), scene_extent(scene))
         nl = len(scene.lights)
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         return cls(scene, spheres, table, light_position, light_color, dtype)
 
 
+def scene_extent(scene: Scene) -> float:
+    """Distance from the origin within which every ray starts and every hit lies."""
+    points = [np.linalg.norm(np.asarray(scene.camera.look_from, dtype=np.float64)),
+              np.linalg.norm(np.asarray(scene.camera.look_at, dtype=np.float64))]
+    points += [np.linalg.norm(s.center) + s.radius for s in scene.spheres]
+    points += [np.linalg.norm(light.position) for light in scene.lights]
+    return float(max(points))
+
+
 def precision_of(scene: Scene) -> np.dtype:
-    """The floating-point type the wavefront runs in (see ``FLOAT32_EXTENT``)."""
+    """The floating-point type the wavefront runs in (see ``geometry.FLOAT32_EXTENT``)."""
     choice = scene.render.precision
     if choice != "auto":
         return np.dtype(choice)
-    points = [abs(np.asarray(scene.camera.look_from, dtype=np.float64)).max(),
-              abs(np.asarray(scene.camera.look_at, dtype=np.float64)).max()]
-    points += [np.linalg.norm(s.center) + s.radius for s in scene.spheres]
-    points += [np.linalg.norm(light.position) for light in scene.lights]
-    return np.dtype(np.float32 if max(points) <= FLOAT32_EXTENT else np.float64)
+    return precision_for([s.radius for s in scene.spheres], scene_extent(scene))
 
 
 def turntable(scene: Scene, frame: int, frames: int) -> Scene:
