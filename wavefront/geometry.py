@@ -165,7 +165,8 @@ def nearest_root(near, far):
 
     A miss arrives as a NaN pair; NaN compares false, so it becomes ``inf``.
     """
-    return np.fmin(np.where(near > T_MIN, near, np.inf), np.where(far > T_MIN, far, np.inf))
+    t = np.where(near > T_MIN, near, far)  # far >= near, so this is the first root past T_MIN if any
+    return np.where(t > T_MIN, t, np.inf)
 
 
 def is_hit(t):
