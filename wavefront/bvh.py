@@ -54,6 +54,9 @@ TRAVERSAL_BATCH = 8192
 # (1e-5 of a 12-unit scene).
 BOX_PAD = 2.0 ** -20
 ROUNDING_PAD = 64
+# The float32 pass of the leaf test grows each radius by this many box pads:
+# its own rounding (a few float32 epsilons of the extent) is below one.
+LEAF_PAD = 4
 LEAF_WAVES = 2  # nearest-first passes over a level's leaves before testing the rest at once
 OUTSIZED = 8.0  # radius above this many times the median: tested outside the tree
 MAX_OUTSIZED = 16
@@ -127,10 +130,7 @@ class SphereBVH:
         for j in range(LEAF_SIZE):
             has = self.count > j
             self.leaf_slot[j, has] = self.order[self.first[has] + j]
-        real = np.maximum(self.leaf_slot, 0)
-        self.leaf_sphere = real  # padding reads sphere 0, but its roots are never finite
-        self.leaf_center = np.where(self.leaf_slot >= 0, self.center[:, real], np.nan)  # (3, LEAF_SIZE, K)
-        self.leaf_radius_squared = np.where(self.leaf_slot >= 0, self.spheres.radius_squared[real], np.nan)  # (LEAF_SIZE, K)
+        self.leaf_sphere = np.maximum(self.leaf_slot, 0).ravel()  # (LEAF_SIZE * K,): slot j of node k at j * K + k
         self._build_traversal_tables(boxes.astype(np.float64))
 
     def _build_traversal_tables(self, boxes: np.ndarray) -> None:
@@ -149,6 +149,13 @@ class SphereBVH:
         pad += float(np.finfo(f32).tiny)
         # the root box, padded alike, clips rays in the scene's precision
         self.root_box = np.concatenate((boxes[:3, :1] - pad, boxes[3:, :1] + pad))
+        # leaves' spheres in float32 for the first, conservative pass of the leaf test;
+        # NaN in padding slots fails every comparison
+        real = self.leaf_slot >= 0
+        center = self.center.astype(np.float64)[:, np.maximum(self.leaf_slot, 0)]
+        self.leaf_center32 = np.where(real, center, np.nan).astype(f32)  # (3, LEAF_SIZE, K)
+        reach = self.radius.astype(np.float64)[np.maximum(self.leaf_slot, 0)] + LEAF_PAD * pad
+        self.leaf_reach32 = np.nextafter(np.where(real, reach, np.nan).astype(f32), f32(np.inf))
         lo = np.nextafter((boxes[:3] - pad).astype(f32), f32(-np.inf))  # rounded outwards
         hi = np.nextafter((boxes[3:] + pad).astype(f32), f32(np.inf))
         left = np.maximum(self.child, 0)
@@ -231,29 +238,40 @@ class SphereBVH:
         update_to_beat(np.arange(ray_ids.size))
         found = []
 
-        def test_leaves(ray, node):
-            """Test (ray, leaf) pairs against all of each leaf's spheres at once.
+        d32 = d.astype(f32)
+        origin32 = rays[:3]
 
-            The leaf table is padded to LEAF_SIZE with spheres that cannot be
-            hit (NaN), so one gather of the ray per pair and a (LEAF_SIZE, P)
-            broadcast replace a ragged expansion to (ray, sphere) pairs.  The
-            arithmetic is brute force's, in the scene's precision.
+        def test_leaves(ray, node):
+            """Test (ray, leaf) pairs against their leaves' spheres.
+
+            A float32 pass in the traversal's frame over all (LEAF_SIZE, P)
+            (ray, sphere) slots keeps those whose line passes within a padded
+            radius and whose span overlaps [0, to_beat]; padding slots are NaN
+            and never kept.  Only the kept slots, typically a few in ten, are
+            tested with brute force's arithmetic in the scene's precision.
             """
-            sphere = np.take(self.leaf_sphere, node, axis=1, mode="wrap")  # (LEAF_SIZE, P)
-            t = nearest_root(*sphere_roots(
-                np.take(self.leaf_center, node, axis=2, mode="wrap"),
-                np.take(self.leaf_radius_squared, node, axis=1, mode="wrap"),
-                np.take(o, ray, axis=1, mode="wrap")[:, None, :], np.take(d, ray, axis=1, mode="wrap")[:, None, :]))
-            t_leaf = t.min(axis=0)  # padding spheres are NaN: their roots come out inf
-            # lowest sphere index among equal nearest roots, as brute force picks
-            s_leaf = np.full(ray.size, np.iinfo(np.int64).max)
-            for j in range(LEAF_SIZE):
-                s_leaf = np.minimum(s_leaf, sphere[j] + (t[j] != t_leaf) * np.iinfo(np.int32).max)
-            ok = np.flatnonzero(is_hit(t_leaf) & (t_leaf < limit.take(ray)) & (t_leaf <= nearest.take(ray)))
-            ray, t_leaf, s_leaf = ray.take(ok), t_leaf.take(ok), s_leaf.take(ok)
-            np.minimum.at(nearest, ray, t_leaf)
+            center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, LEAF_SIZE, P)
+            oc = center - np.take(origin32, ray, axis=1, mode="wrap")[:, None, :]
+            dr = np.take(d32, ray, axis=1, mode="wrap")[:, None, :]
+            h = dr[0] * oc[0]
+            h += dr[1] * oc[1]
+            h += dr[2] * oc[2]
+            oc -= h * dr  # now l, the centre's offset from the line
+            oc *= oc
+            reach = np.take(self.leaf_reach32, node, axis=1, mode="wrap")  # padded radius
+            candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
+            candidate &= h - reach <= to_beat.take(ray)
+            slot = np.flatnonzero(candidate)  # j * P + pair for sphere j of pair's leaf
+            pair = slot % ray.size
+            sphere = self.leaf_sphere.take(slot // ray.size * self.child.size + node.take(pair))
+            ray = ray.take(pair)
+            t = nearest_root(*sphere_roots(self.center.take(sphere, axis=1), self.spheres.radius_squared.take(sphere),
+                                           o.take(ray, axis=1), d.take(ray, axis=1)))
+            ok = np.flatnonzero(is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray)))
+            ray, t, sphere = ray.take(ok), t.take(ok), sphere.take(ok)
+            np.minimum.at(nearest, ray, t)
             update_to_beat(ray)
-            found.append((ray_ids.take(ray), t_leaf, s_leaf))
+            found.append((ray_ids.take(ray), t, sphere))
 
         def test_leaves_nearest_first(ray, node, entry):
             """Leaves in waves: each ray's nearest leaf box first, then only the
