@@ -3,11 +3,12 @@
 Depth-first traversal with a stack per ray does not vectorise.  Instead the
 unit of work is a (ray, node) *pair*: every pair whose box the ray enters
 before its best hit so far survives, interior nodes expand to two child
-pairs, and leaves expand to (ray, sphere) pairs that are tested with exactly
-the arithmetic of the brute-force intersector (:func:`sphere_roots`), so both
-find the same sphere for every ray, bit for bit.  Each level is a handful of
-NumPy calls over all pairs of that level; the Python loop runs over the
-tree's depth, never over rays.
+pairs, and leaves expand to (ray, sphere) pairs.  Those pass a conservative
+float32 test first, and the few that survive it are tested with exactly the
+arithmetic of the brute-force intersector (:func:`sphere_roots`), so both
+find the same sphere at the same ``t`` for every ray, bit for bit.  Each
+level is a handful of NumPy calls over all pairs of that level; the Python
+loop runs over the tree's depth, never over rays.
 
 The tree is built top-down by median split along the widest axis of the
 sphere centres, with at most ``LEAF_SIZE`` spheres per leaf.  Outsized
@@ -57,7 +58,6 @@ ROUNDING_PAD = 64
 # The float32 pass of the leaf test grows each radius by this many box pads:
 # its own rounding (a few float32 epsilons of the extent) is below one.
 LEAF_PAD = 4
-LEAF_WAVES = 2  # nearest-first passes over a level's leaves before testing the rest at once
 OUTSIZED = 8.0  # radius above this many times the median: tested outside the tree
 MAX_OUTSIZED = 16
 
@@ -273,25 +273,6 @@ class SphereBVH:
             update_to_beat(ray)
             found.append((ray_ids.take(ray), t, sphere))
 
-        def test_leaves_nearest_first(ray, node, entry):
-            """Leaves in waves: each ray's nearest leaf box first, then only the
-            leaves that still start before the best hit.  Breadth-first order
-            reaches all leaves of a level at once, so without this a ray would
-            test every leaf its line crosses, not just those before its hit."""
-            for _ in range(LEAF_WAVES - 1):
-                if ray.size == 0:
-                    return
-                closest = np.full(ray_ids.size, np.inf, dtype=f32)
-                np.minimum.at(closest, ray, entry)
-                now = entry == closest.take(ray)
-                test_leaves(ray.compress(now), node.compress(now))
-                later = np.flatnonzero(~now)
-                ray, node, entry = ray.take(later), node.take(later), entry.take(later)
-                still = np.flatnonzero(entry <= to_beat.take(ray))
-                ray, node, entry = ray.take(still), node.take(still), entry.take(still)
-            if ray.size:
-                test_leaves(ray, node)
-
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_leaves(ray, np.zeros(ray.size, dtype=np.int64))
@@ -317,8 +298,7 @@ class SphereBVH:
             is_leaf = self.octant_is_leaf.take(node)
             leaf = np.flatnonzero(is_leaf)
             if leaf.size:
-                test_leaves_nearest_first(ray.take(leaf), self.octant_node.take(node.take(leaf)),
-                                          entry.ravel().take(keep.take(leaf)))
+                test_leaves(ray.take(leaf), self.octant_node.take(node.take(leaf)))
                 inner = np.flatnonzero(~is_leaf)
                 ray, node = ray.take(inner), node.take(inner)
         best_t[ray_ids] = nearest
