@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import T_MIN, Hits, SphereSet, intersect_brute_force, is_hit, nearest_root, sphere_roots
+from .geometry import T_MIN, Hits, SphereSet, escaped_at_inf, intersect_brute_force, is_hit, nearest_root, sphere_roots
 from .vecmath import gather
 
 LEAF_SIZE = 4
@@ -205,7 +205,8 @@ class SphereBVH:
         first = intersect_brute_force(self.outsized_set, origin, direction, t_max)
         best_t = np.minimum(first.t, limit)
         found = self._traverse(origin, direction, limit, best_t)  # lowers best_t to the tree's hits
-        best_idx = np.full(n, np.iinfo(np.int32).max, dtype=np.int64)
+        none = len(self.spheres)  # sentinel above every sphere index, so np.minimum keeps real ones
+        best_idx = np.full(n, none, dtype=np.int64)
         from_first = np.flatnonzero((first.sphere_idx >= 0) & (first.t == best_t))
         best_idx[from_first] = self.outsized.take(first.sphere_idx.take(from_first))
         if found:
@@ -213,8 +214,9 @@ class SphereBVH:
             winner = np.flatnonzero(t == best_t.take(ray))
             # ties go to the lowest sphere index, as in brute force
             np.minimum.at(best_idx, ray.take(winner), sphere.take(winner))
-        hit = best_idx != np.iinfo(np.int32).max
-        return Hits(np.where(hit, best_t, np.inf), np.where(hit, best_idx, -1).astype(np.int32))
+        missed = best_idx == none
+        best_idx -= missed * (none + 1)  # the sentinel becomes -1
+        return Hits(escaped_at_inf(best_t, ~missed, t_max), best_idx.astype(np.int32))
 
     def _traverse(self, origin, direction, limit, best_t) -> list:
         """Walk the tree for the rays that enter its root box.

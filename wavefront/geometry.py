@@ -135,10 +135,10 @@ def sphere_roots(center, radius_squared, origin, direction):
     the radius.  Both the brute-force and the BVH intersectors call this with
     the same operands, so they agree bit for bit.
 
-    A miss (negative discriminant) yields NaN roots rather than a separate
-    mask: every comparison with NaN is false, so :func:`nearest_root` turns
-    them into ``inf`` with no extra pass over the pairs.  Returns
-    ``(near, far)``.
+    Returns ``(h, sqrt_disc)``: the roots are ``h - sqrt_disc`` and
+    ``h + sqrt_disc``.  A miss (negative discriminant) yields a NaN
+    ``sqrt_disc`` rather than a separate mask: every comparison with NaN is
+    false, so :func:`nearest_root` turns it into ``inf`` with no extra pass.
     """
     ox = center[0] - origin[0]
     oy = center[1] - origin[1]
@@ -157,16 +157,25 @@ def sphere_roots(center, radius_squared, origin, direction):
     disc -= oz
     with np.errstate(invalid="ignore"):
         sqrt_disc = np.sqrt(disc)
-    return h - sqrt_disc, h + sqrt_disc
+    return h, sqrt_disc
 
 
-def nearest_root(near, far):
-    """The first root past ``T_MIN``, or ``inf`` where there is none.
+def nearest_root(h, sqrt_disc):
+    """The first root ``h -/+ sqrt_disc`` past ``T_MIN``, or ``inf`` where there is none.
 
-    A miss arrives as a NaN pair; NaN compares false, so it becomes ``inf``.
+    Written without ``np.where``, which measured 2-4 ns per element here
+    against ~0.15 for arithmetic: ``h + copysign(sqrt_disc, T_MIN - near)``
+    is the near root where it lies past ``T_MIN`` and the far one otherwise,
+    bit for bit (``h + (-s)`` rounds exactly as ``h - s``); then dividing
+    ``|t|`` by the mask ``t > T_MIN`` keeps a valid ``t`` and sends the rest
+    to ``inf`` (or NaN, which ``fmin`` turns into ``inf``, as it does a miss).
     """
-    t = np.where(near > T_MIN, near, far)  # far >= near, so this is the first root past T_MIN if any
-    return np.where(t > T_MIN, t, np.inf)
+    t = h + np.copysign(sqrt_disc, T_MIN - (h - sqrt_disc))
+    valid = t > T_MIN
+    with np.errstate(divide="ignore", invalid="ignore"):
+        np.abs(t, out=t)
+        t /= valid
+    return np.fmin(t, np.inf, out=t)
 
 
 def is_hit(t):
@@ -196,5 +205,13 @@ def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -
             take = closer & (t[j] == t_block)
             best_idx += take * (start + j - best_idx)
         best_t = np.minimum(best_t, t_block)
-    hit = best_idx >= 0
-    return Hits(np.where(hit, best_t, np.inf), best_idx.astype(np.int32))
+    return Hits(escaped_at_inf(best_t, best_idx >= 0, t_max), best_idx.astype(np.int32))
+
+
+def escaped_at_inf(best_t, hit, t_max):
+    """``best_t`` with ``inf`` where nothing was hit.  Without a finite
+    ``t_max`` it is already ``inf`` there, and an ``np.where`` over every ray
+    (~2 ns each) is skipped."""
+    if np.ndim(t_max) == 0 and t_max == np.inf:
+        return best_t
+    return np.where(hit, best_t, np.inf)

@@ -200,8 +200,8 @@ def scatter_lambertian(direction, normal, front_face, albedo, u):
     Reflection"), so the attenuation is just the albedo.  Never absorbs.
     """
     scattered = normal + random_unit_vector(u[0], u[1])
-    degenerate = dot(scattered, scattered) < DEGENERATE_SQUARED_LENGTH
-    scattered = np.where(degenerate, normal, scattered)
+    degenerate = np.flatnonzero(dot(scattered, scattered) < DEGENERATE_SQUARED_LENGTH)
+    scatter(scattered, degenerate, gather(normal, degenerate))  # rare rows: by index, not a where
     absorbed = np.zeros(direction.shape[1], dtype=bool)
     return albedo, normalize(scattered), absorbed
 
