@@ -255,7 +255,7 @@ DASK_CHILD = textwrap.dedent("""
         times.append(r.stats.elapsed)
     capacity = capacity_for(DEFAULT_MEMORY - image_bytes(scene.width, scene.height), n)
     units = plan_units(scene.width, scene.height, scene.render.samples_per_pixel)
-    tasks = len(plan_tasks(units, capacity))
+    tasks = len(plan_tasks(units, capacity, n))
     times.sort()
     print(json.dumps({"elapsed": times[len(times) // 2], "tasks": tasks, "units": len(units)}))
 """)

@@ -69,6 +69,19 @@ def test_units_cover_every_pixel_sample_once():
     assert (counts == 2 * PASS_SAMPLES + 3).all()
 
 
+def test_tasks_cover_the_units_in_order_and_shrink_towards_the_end():
+    from wavefront.render import TASK_WAVEFRONTS, plan_tasks
+
+    units = plan_units(400, 225, 10)
+    capacity = 65536
+    tasks = plan_tasks(units, capacity, workers=2)
+    assert [u for task in tasks for u in task] == units
+    sizes = [sum(u.size for u in task) for task in tasks]
+    assert max(sizes) < TASK_WAVEFRONTS * capacity + max(u.size for u in units)  # a target plus one unit
+    assert sizes == sorted(sizes, reverse=True) and sizes[-1] < sizes[0] / 2  # long first, short last
+    assert plan_tasks([], capacity, workers=2) == []
+
+
 def test_capacity_comes_from_the_budget_not_the_image():
     assert capacity_for(1 << 30, 2) == capacity_for(1 << 30, 2)
     assert capacity_for(64 << 20, 1) < capacity_for(1 << 30, 1)

@@ -76,15 +76,28 @@ def capacity_for(memory: int, workers: int) -> int:
     return int(np.clip(per_worker // BYTES_PER_PATH, MIN_CAPACITY, MAX_CAPACITY))
 
 
-def plan_tasks(units: list[Unit], capacity: int) -> list[list[Unit]]:
-    """Consecutive units grouped so each task keeps a wavefront busy."""
-    target = TASK_WAVEFRONTS * capacity
+def plan_tasks(units: list[Unit], capacity: int, workers: int = 1) -> list[list[Unit]]:
+    """Consecutive units grouped into tasks that shrink towards the end.
+
+    Guided scheduling: each task takes about 1/(2 * workers) of the samples
+    still unplanned (at most TASK_WAVEFRONTS wavefronts, at least one), so
+    the first tasks are long and keep every wavefront full, and the last are
+    short so no worker finishes long before the others.  Tiles differ in cost
+    (sky is cheap), and with four equal tasks one worker of W2 idled for up
+    to a fifth of the wall time.
+    Grouping never changes the image: units are merged in order.
+    """
+    remaining = sum(unit.size for unit in units)
     tasks, current, size = [], [], 0
+    target = 0
     for unit in units:
+        if not current:
+            target = min(TASK_WAVEFRONTS * capacity, max(capacity, remaining // (2 * workers)))
         current.append(unit)
         size += unit.size
         if size >= target:
             tasks.append(current)
+            remaining -= size
             current, size = [], 0
     if current:
         tasks.append(current)
@@ -290,7 +303,7 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         film, first_unit = Film(scene.width, scene.height), 0
     # Units are merged strictly in order, so "the first k units" describes
     # any partial state exactly; resuming merges the rest in the same order.
-    tasks = plan_tasks(units[first_unit:], capacity)
+    tasks = plan_tasks(units[first_unit:], capacity, workers)
     workers = max(1, min(workers, len(tasks)))
     stats = RenderStats(seed=scene.render.seed, units_done=first_unit, units_total=len(units),
                         workers=workers, capacity=capacity)
