@@ -130,7 +130,7 @@ def tune_allocator() -> None:
 _WORKER: dict = {}
 
 
-def _init_worker(scene: Scene, capacity: int, compiled: CompiledScene | None = None) -> None:
+def _init_worker(scene: Scene, capacity: int, compiled: CompiledScene | None = None, key=None) -> None:
     # The parent decides what an interrupt means; workers just get
     # terminated.  A forked worker inherits the parent's Python handlers, and
     # one that caught SIGTERM would make Pool.terminate() wait forever.
@@ -138,7 +138,8 @@ def _init_worker(scene: Scene, capacity: int, compiled: CompiledScene | None = N
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     tune_allocator()
     compiled = compiled if compiled is not None else scene.compile()
-    _WORKER.update(compiled=compiled, capacity=capacity, key=scene_key(scene.render.seed))
+    key = key if key is not None else scene_key(scene.render.seed)
+    _WORKER.update(compiled=compiled, capacity=capacity, key=key)
 
 
 def execute(cs: CompiledScene, key, capacity: int, units: list[Unit], should_stop=None):
@@ -371,10 +372,11 @@ def _run_inline(scene, capacity, tasks, merge, stopped) -> None:
 def _run_pool(scene, capacity, tasks, merge, stopped, workers) -> None:
     fork = "fork" in multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if fork else "spawn")
-    # Forked workers inherit a scene compiled here: compiling in each of them
-    # (first imports and all) held back the first tasks by ~30 ms, 6 % of W2.
-    compiled = scene.compile() if fork else None
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity, compiled))
+    # Forked workers inherit the scene compiled and the key derived here:
+    # doing both in each of them (first imports of the BVH and of
+    # numpy.random included) held back the first tasks by ~40 ms, 8 % of W2.
+    compiled, key = (scene.compile(), scene_key(scene.render.seed)) if fork else (None, None)
+    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity, compiled, key))
     try:
         results = pool.imap(run_task, tasks)  # in task order: the merge order is fixed
         for _ in tasks:

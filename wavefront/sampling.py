@@ -26,6 +26,7 @@ the tests feed them controlled numbers.
 from __future__ import annotations
 
 import numpy as np
+from numpy.random import SeedSequence  # imported with the package: NumPy loads numpy.random lazily, ~7 ms
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # Weyl increment: 2^64 / golden ratio
 _MIX_1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -51,7 +52,7 @@ def mix64(x: np.ndarray) -> np.ndarray:
 
 def scene_key(seed: int) -> np.uint64:
     """Derive the 64-bit hash key of a render from the user's ``seed``."""
-    state = np.random.SeedSequence(int(seed)).generate_state(1, dtype=np.uint64)
+    state = SeedSequence(int(seed)).generate_state(1, dtype=np.uint64)
     return np.uint64(state[0])
 
 

@@ -167,11 +167,12 @@ class CompiledScene:
 
 def scene_extent(scene: Scene) -> float:
     """Distance from the origin within which every ray starts and every hit lies."""
-    points = [np.linalg.norm(np.asarray(scene.camera.look_from, dtype=np.float64)),
-              np.linalg.norm(np.asarray(scene.camera.look_at, dtype=np.float64))]
-    points += [np.linalg.norm(s.center) + s.radius for s in scene.spheres]
-    points += [np.linalg.norm(light.position) for light in scene.lights]
-    return float(max(points))
+    points = [scene.camera.look_from, scene.camera.look_at] + [light.position for light in scene.lights]
+    points = np.linalg.norm(np.array(points, dtype=np.float64).reshape(-1, 3), axis=1)
+    center = np.array([s.center for s in scene.spheres], dtype=np.float64).reshape(-1, 3)
+    radius = np.array([s.radius for s in scene.spheres], dtype=np.float64)
+    reach = np.linalg.norm(center, axis=1) + radius
+    return float(max(points.max(), reach.max(initial=0.0)))
 
 
 def precision_of(scene: Scene) -> np.dtype:
