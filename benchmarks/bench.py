@@ -11,7 +11,9 @@ workloads  W1 (three_spheres, 400x225, 100 spp) and W2 (final_scene, ~487
            ``scalar_rgb``, said in the output) on the same scene, built by
            ``benchmarks/mitsuba_scene.py``.  Medians of ``--runs`` runs, each in
            a fresh process; Mitsuba gets one unmeasured warm-up render per
-           process so its JIT compilation is not counted.
+           process so its JIT compilation is not counted.  Mitsuba runs twice:
+           as it comes (the baseline; Russian roulette from depth 5) and with
+           rr_depth past max_depth, the estimator wavefront runs.
 scaling    time per path segment for 10, 100, 1,000 and 10,000 random spheres
            (one core), with the brute-force intersector as the baseline where
            it finishes in reasonable time.
@@ -72,7 +74,7 @@ MITSUBA_CHILD = textwrap.dedent("""
     from mitsuba_scene import mitsuba_scene_dict
     import wavefront
     scene = wavefront.load_scene(args["scene"])
-    mscene = mi.load_dict(mitsuba_scene_dict(scene, mi))
+    mscene = mi.load_dict(mitsuba_scene_dict(scene, mi, russian_roulette=not args.get("no_rr")))
     spp = scene.render.samples_per_pixel
     np.array(mi.render(mscene, spp=spp))  # warm-up: JIT compilation is not timed
     t = time.perf_counter()
@@ -177,11 +179,21 @@ def section_workloads(runs):
             rows.append(row + [f"{w['elapsed'] / m['elapsed']:.2f}x"])
             rows.append([name, variant, f"{m['elapsed']:.2f} s", f"{m['samples'] / m['elapsed'] / 1e6:.2f} M",
                          "–", fmt_mib(m["peak"]), "1.00x"])
+            # the same estimator as wavefront's: no Russian roulette (shown, not the baseline)
+            q = median_runs(MITSUBA_CHILD, {"scene": scene, "variant": variant, "no_rr": True,
+                                            "bench_dir": str(ROOT / "benchmarks")}, runs, env)
+            data[name]["mitsuba_no_rr"] = q
+            rows.append([name, f"{variant}, no Russian roulette", f"{q['elapsed']:.2f} s",
+                         f"{q['samples'] / q['elapsed'] / 1e6:.2f} M", "–", fmt_mib(q["peak"]),
+                         f"{q['elapsed'] / m['elapsed']:.2f}x"])
         else:
             rows.append(row + ["–"])
     text = table(["workload", "renderer", "wall time", "samples/s", "path segments/s", "peak memory",
                   "time / Mitsuba"], rows)
-    return f"Baseline: {note}. Medians of {runs} runs, each in a fresh process.\n\n{text}", data
+    return (f"Baseline: {note}, its default path integrator (Russian roulette from depth 5). The "
+            f"row without Russian roulette (rr_depth past max_depth) runs the estimator wavefront runs; "
+            f"its last column is relative to the baseline. Medians of {runs} runs, each in a fresh "
+            f"process.\n\n{text}"), data
 
 
 def section_scaling(runs):

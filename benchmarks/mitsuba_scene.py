@@ -27,7 +27,10 @@ def sky_bitmap(background, height=64):
     return np.repeat(rows[:, None, :], 2 * height, axis=1).astype(np.float32)
 
 
-def mitsuba_scene_dict(scene, mi):
+def mitsuba_scene_dict(scene, mi, russian_roulette=True):
+    """Mitsuba's dict for a wavefront scene.  ``russian_roulette=False`` sets
+    ``rr_depth`` past ``max_depth``: Mitsuba's default ends paths at random from
+    depth 5 on, wavefront (like the books) only at ``max_depth``."""
     cam = scene.camera
     look_from = np.asarray(cam.look_from, dtype=float)
     look_at = np.asarray(cam.look_at, dtype=float)
@@ -46,7 +49,8 @@ def mitsuba_scene_dict(scene, mi):
         sensor["aperture_radius"] = focus * math.tan(math.radians(cam.defocus_angle / 2))
         sensor["focus_distance"] = focus
     doc = {"type": "scene",
-           "integrator": {"type": "path", "max_depth": scene.render.depth},
+           "integrator": {"type": "path", "max_depth": scene.render.depth,
+                          **({} if russian_roulette else {"rr_depth": scene.render.depth + 1})},
            "sensor": sensor}
     bg = scene.background
     if bg.type == "sky":
