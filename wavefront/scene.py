@@ -16,6 +16,7 @@ objects a YAML file would::
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -167,8 +168,13 @@ class CompiledScene:
 
 def scene_extent(scene: Scene) -> float:
     """Distance from the origin within which every ray starts and every hit lies."""
-    points = [scene.camera.look_from, scene.camera.look_at] + [light.position for light in scene.lights]
+    cam = scene.camera
+    points = [cam.look_from, cam.look_at] + [light.position for light in scene.lights]
     points = np.linalg.norm(np.array(points, dtype=np.float64).reshape(-1, 3), axis=1)
+    # camera rays start anywhere on the lens, up to the defocus radius from look_from
+    focus = cam.focus_dist if cam.focus_dist is not None else \
+        float(np.linalg.norm(np.subtract(cam.look_at, cam.look_from, dtype=np.float64)))
+    points[0] += abs(focus) * math.tan(math.radians(min(cam.defocus_angle, 179.0) / 2.0))
     center = np.array([s.center for s in scene.spheres], dtype=np.float64).reshape(-1, 3)
     radius = np.array([s.radius for s in scene.spheres], dtype=np.float64)
     reach = np.linalg.norm(center, axis=1) + radius
