@@ -69,6 +69,16 @@ OUTSIZED = 4.0
 MAX_OUTSIZED = 16
 
 
+def float32_up(x) -> np.ndarray:
+    """``x`` in float32, rounded towards +inf (a bound that stays a bound)."""
+    return np.nextafter(np.asarray(x).astype(np.float32), np.float32(np.inf))
+
+
+def float32_down(x) -> np.ndarray:
+    """``x`` in float32, rounded towards -inf."""
+    return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
+
+
 class SphereBVH:
     """Same interface as :class:`~wavefront.geometry.SphereSet`."""
 
@@ -162,9 +172,8 @@ class SphereBVH:
         center = self.center.astype(np.float64)[:, np.maximum(self.leaf_slot, 0)]
         self.leaf_center32 = np.where(real, center, np.nan).astype(f32)  # (3, LEAF_SIZE, K)
         reach = self.radius.astype(np.float64)[np.maximum(self.leaf_slot, 0)] + LEAF_PAD * pad
-        self.leaf_reach32 = np.nextafter(np.where(real, reach, np.nan).astype(f32), f32(np.inf))
-        lo = np.nextafter((boxes[:3] - pad).astype(f32), f32(-np.inf))  # rounded outwards
-        hi = np.nextafter((boxes[3:] + pad).astype(f32), f32(np.inf))
+        self.leaf_reach32 = float32_up(np.where(real, reach, np.nan))
+        lo, hi = float32_down(boxes[:3] - pad), float32_up(boxes[3:] + pad)  # rounded outwards
         left = np.maximum(self.child, 0)
         right = left + (self.child >= 0)
         tables = np.empty((2, 2, 3, 8, k), dtype=f32)  # child, enter/leave, axis, octant, node
@@ -185,7 +194,6 @@ class SphereBVH:
             if self.child[node] >= 0:
                 depth[self.child[node]:self.child[node] + 2] = depth[node] + 1
         self.first_leaf_depth = int(depth[self.count > 0].min())
-        self.octant_node = np.tile(np.arange(k), 8)  # column -> node
 
     # -- traversal -----------------------------------------------------------
 
@@ -245,12 +253,7 @@ class SphereBVH:
         shift = np.maximum(near.take(ray_ids), 0.0)
         with np.errstate(over="ignore"):  # 1/d beyond float32 becomes inf, which the slab test handles
             rays = np.concatenate(((o + shift * d).astype(f32), gather(inv, ray_ids).astype(f32)))
-        to_beat = np.empty(ray_ids.size, dtype=f32)  # nearest - shift, rounded up
-
-        def update_to_beat(rows):
-            to_beat[rows] = np.nextafter((nearest.take(rows) - shift.take(rows)).astype(f32), f32(np.inf))
-
-        to_beat[:] = np.nextafter((nearest - shift).astype(f32), f32(np.inf))
+        to_beat = float32_up(nearest - shift)  # the best hit so far in the traversal's frame
         found = []
 
         d32 = d.astype(f32)
@@ -285,7 +288,7 @@ class SphereBVH:
             ok = np.flatnonzero(is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray)))
             ray, t, sphere = ray.take(ok), t.take(ok), sphere.take(ok)
             np.minimum.at(nearest, ray, t)
-            update_to_beat(ray)
+            to_beat[ray] = float32_up(nearest.take(ray) - shift.take(ray))
             found.append((ray_ids.take(ray), t, sphere))
 
         ray = np.arange(ray_ids.size)
@@ -317,7 +320,7 @@ class SphereBVH:
             is_leaf = self.octant_is_leaf.take(node)
             leaf = np.flatnonzero(is_leaf)
             if leaf.size:
-                test_leaves(ray.take(leaf), self.octant_node.take(node.take(leaf)))
+                test_leaves(ray.take(leaf), node.take(leaf) % self.child.size)  # column -> node
                 inner = np.flatnonzero(~is_leaf)
                 ray, node = ray.take(inner), node.take(inner)
         best_t[ray_ids] = nearest

@@ -84,10 +84,8 @@ class SphereSet:
         recomputed from rounded centres, so a float32 subset intersects
         bit for bit as the whole set does."""
         part = object.__new__(SphereSet)
-        part.dtype = self.dtype
-        for name in ("center", "radius", "material_idx", "radius_squared", "inverse_radius"):
-            value = getattr(self, name)
-            setattr(part, name, np.ascontiguousarray(value[..., idx]))
+        for name, value in vars(self).items():  # every per-sphere array, whatever it is called
+            setattr(part, name, np.ascontiguousarray(value[..., idx]) if isinstance(value, np.ndarray) else value)
         return part
 
     def intersect(self, origin: np.ndarray, direction: np.ndarray, t_max=np.inf) -> Hits:
