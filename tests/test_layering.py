@@ -8,10 +8,11 @@ PACKAGE = Path(__file__).resolve().parent.parent / "wavefront"
 # Lowest first.  A module may import from its own layer or any layer below.
 LAYERS = [
     {"vecmath", "sampling"},
-    {"geometry", "camera", "materials", "background", "batch", "film"},
+    {"geometry", "camera", "materials", "background", "batch", "units", "output"},
+    {"film"},
     {"bvh", "accel"},
     {"scene"},
-    {"scenefile", "output"},
+    {"scenefile"},
     {"path", "whitted"},
     {"render"},
     {"distributed"},

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from wavefront import Camera, Lambertian, Scene, Sphere, load_scene, render, render_scene
-from wavefront.film import PASS_SAMPLES, plan_units
-from wavefront.render import capacity_for
+from wavefront.units import PASS_SAMPLES, plan_units
 
 from .test_furnace import SCENES
 
@@ -61,30 +60,73 @@ def test_stats_count_samples_and_segments(scene):
     assert s.segments >= s.samples and not s.partial and s.dropped == 0
 
 
-def test_units_cover_every_pixel_sample_once():
-    units = plan_units(130, 70, 2 * PASS_SAMPLES + 3)
-    counts = np.zeros(130 * 70, dtype=int)
-    for u in units:
-        np.add.at(counts, u.pixel_index(130), u.samples_per_pixel)
-    assert (counts == 2 * PASS_SAMPLES + 3).all()
+@pytest.mark.parametrize("width, height, spp", [(130, 70, 2 * PASS_SAMPLES + 3), (1, 1, 100_000), (65, 3, 17),
+                                                 (3, 200, 1), (400, 225, 10)])
+def test_units_cover_every_pixel_sample_once(width, height, spp):
+    plan = plan_units(width, height, spp)
+    counts = np.zeros(width * height, dtype=int)
+    done = 0
+    for i, u in enumerate(plan):
+        assert plan.samples_before(i) == done and u.index == i and u.samples_per_pixel > 0
+        np.add.at(counts, u.pixel_index(width), u.samples_per_pixel)
+        done += u.size
+    assert (counts == spp).all() and done == plan.total_samples == plan.samples_before(len(plan))
+
+
+def test_the_first_pass_gives_every_pixel_a_sample():
+    plan = plan_units(400, 225, 16)  # one pass of 16 used to fill the image tile by tile
+    first = [u for u in plan if u.sample_start == 0]
+    assert [u.index for u in first] == list(range(len(first)))  # the first units of the render
+    assert all(u.samples_per_pixel == 1 for u in first)
+    assert sum(u.pixels for u in first) == 400 * 225
+
+
+def test_the_plan_does_not_grow_with_the_sample_count():
+    import tracemalloc
+
+    tracemalloc.start()
+    plan = plan_units(3840, 2160, 1 << 24)
+    last = plan[len(plan) - 1]
+    size, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert len(plan) > 10**9 and last.sample_stop == 1 << 24
+    assert peak < 1 << 20
 
 
 def test_tasks_cover_the_units_in_order_and_shrink_towards_the_end():
     from wavefront.render import TASK_WAVEFRONTS, plan_tasks
 
-    units = plan_units(400, 225, 10)
+    plan = plan_units(400, 225, 10)
     capacity = 65536
-    tasks = plan_tasks(units, capacity, workers=2)
-    assert [u for task in tasks for u in task] == units
+    tasks = list(plan_tasks(plan, capacity, workers=2))
+    assert [u for task in tasks for u in task] == list(plan)
     sizes = [sum(u.size for u in task) for task in tasks]
-    assert max(sizes) < TASK_WAVEFRONTS * capacity + max(u.size for u in units)  # a target plus one unit
+    assert max(sizes) < TASK_WAVEFRONTS * capacity + max(u.size for u in plan)  # a target plus one unit
     assert sizes == sorted(sizes, reverse=True) and sizes[-1] < sizes[0] / 2  # long first, short last
-    assert plan_tasks([], capacity, workers=2) == []
+    resumed = list(plan_tasks(plan, capacity, workers=2, first_unit=len(plan) - 3))
+    assert [u for task in resumed for u in task] == list(plan)[-3:]
+    assert list(plan_tasks(plan, capacity, workers=2, first_unit=len(plan))) == []
 
 
-def test_capacity_comes_from_the_budget_not_the_image():
-    assert capacity_for(1 << 30, 2) == capacity_for(1 << 30, 2)
-    assert capacity_for(64 << 20, 1) < capacity_for(1 << 30, 1)
+def test_tasks_are_planned_lazily():
+    from wavefront.render import plan_tasks
+
+    tasks = plan_tasks(plan_units(3840, 2160, 1 << 24), 65536, workers=2)
+    assert sum(u.size for u in next(tasks)) >= 65536
+
+
+def test_memory_plan_fits_the_budget_or_refuses_with_the_estimate():
+    from wavefront.render import GOOD_CAPACITY, MemoryBudgetError, plan_memory
+
+    MiB = 1 << 20
+    common = dict(base=60 * MiB, film=10 * MiB, per_worker=60 * MiB, output=20 * MiB)
+    big = plan_memory(1 << 30, 2, None, **common)
+    assert big.workers == 2 and big.peak <= 1 << 30
+    small = plan_memory(200 * MiB, 2, None, **common)  # two workers would each cost 60 MiB more
+    assert small.peak <= 200 * MiB and (small.workers == 1 or small.capacity >= GOOD_CAPACITY)
+    assert plan_memory(1 << 30, 2, 1000, **common).capacity == 1000  # an explicit chunk size is kept
+    with pytest.raises(MemoryBudgetError, match=r"needs about \d+ MiB"):
+        plan_memory(64 * MiB, 2, None, **common)
 
 
 def test_auto_precision_follows_the_scene_extent():

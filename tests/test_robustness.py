@@ -78,8 +78,11 @@ def test_resume_with_other_settings_is_refused(tmp_path):
 
 def test_oversized_output_is_refused_up_front(tmp_path):
     t = time.monotonic()
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "huge.png", "--width", 16000, "--height", 16000)
+    assert r.returncode == 2 and "MiB" in r.stderr and "--memory" in r.stderr, r.stderr
     r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "huge.png", "--width", 200000, "--height", 200000)
-    assert r.returncode == 2 and "MiB" in r.stderr and "--memory" in r.stderr
+    assert r.returncode == 2 and "--width 200000 --height 200000" in r.stderr and "pixels" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
     assert time.monotonic() - t < 30 and not (tmp_path / "huge.png").exists()
 
 

@@ -4,15 +4,19 @@
 >>> image = render(load_scene("scenes/three_spheres.yaml"))  # (H, W, 3) linear float32
 """
 
+from . import distributed  # so wavefront.distributed.dask_executor works after "import wavefront"
 from .background import Sky, Solid
 from .camera import Camera
 from .geometry import Sphere
 from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
-from .render import RenderResult, render, render_scene
+from .film import CheckpointError
+from .output import OutputError
+from .render import MemoryBudgetError, RenderResult, render, render_scene
 from .scene import PointLight, RenderSettings, Scene
 from .scenefile import SceneError, SceneWarning, load_scene, scene_from_dict
 
 __all__ = [
+    "CheckpointError", "MemoryBudgetError", "OutputError",
     "Camera", "Dielectric", "Emissive", "Lambertian", "Metal", "Phong", "PointLight",
     "RenderResult", "RenderSettings", "Scene", "SceneError", "SceneWarning", "Sky", "Solid",
     "Sphere", "load_scene", "render", "render_scene", "scene_from_dict",

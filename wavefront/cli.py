@@ -2,7 +2,15 @@
 
 Bad input (a malformed scene, a bad flag, an unwritable output) is reported
 as one line naming the file and what is wrong, with exit status 2, no
-traceback, and no output file written or clobbered.
+traceback, and no output file written or clobbered.  Every file the command
+will write (image, frames, checkpoint) is checked before the scene is even
+loaded; see :mod:`wavefront.output` for the policy (only regular files are
+replaced, symlinks are written through, read-only files are left alone).
+
+Signals: during the render, the first Ctrl-C or SIGTERM stops it and writes
+the partial image; at any other moment (loading, planning, writing), or the
+second time, the command gives up at once, writes nothing, and exits with
+``128 + signal``.
 """
 
 from __future__ import annotations
@@ -12,29 +20,56 @@ import os
 import re
 import signal
 import sys
+import tempfile
+import time
 import warnings
 
 EXIT_BAD_INPUT = 2
 
 
-def _positive_int(text: str) -> int:
+class Interrupted(KeyboardInterrupt):
+    """A signal asked the command to give up now (not a graceful stop)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _limits():
+    """The module holding the scene's limits, which flags share."""
+    from . import scene, scenefile
+
+    return scene if hasattr(scene, "MAX_DEPTH") else scenefile
+
+
+def _integer(text: str, low: int, high: int, what: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"expected {what} in [{low}, {high:,}], got {text!r}")
     return value
+
+
+def _side(text: str) -> int:
+    return _integer(text, 1, _limits().MAX_PIXELS, "a positive integer")
+
+
+def _spp(text: str) -> int:
+    return _integer(text, 1, _limits().MAX_SAMPLES_PER_PIXEL, "a positive integer")
+
+
+def _depth(text: str) -> int:
+    return _integer(text, 1, _limits().MAX_DEPTH, "a positive integer")
+
+
+def _positive_int(text: str) -> int:
+    return _integer(text, 1, 1 << 31, "a positive integer")
 
 
 def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if not 0 <= value < 2**63:
-        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2^63), got {text!r}")
-    return value
+    return _integer(text, 0, _limits().MAX_SEED, "a non-negative integer")
 
 
 def _positive_float(text: str) -> float:
@@ -51,7 +86,9 @@ _SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kmgt]?i?b?)?\s*$", re.IGNORECASE)
 
 
 def _memory(text: str) -> int:
-    """Sizes like ``512M``, ``2GiB``, ``1.5g`` or plain bytes."""
+    """Sizes like ``512M``, ``2GiB``, ``1.5g`` or plain bytes, within the machine's memory."""
+    from .render import physical_memory
+
     m = _SIZE.match(text)
     if not m:
         raise argparse.ArgumentTypeError(f"expected a size such as 512M or 2G, got {text!r}")
@@ -59,27 +96,43 @@ def _memory(text: str) -> int:
     value = int(float(m.group(1)) * scale)
     if value < 64 << 20:
         raise argparse.ArgumentTypeError(f"at least 64M is needed, got {text!r}")
+    physical = physical_memory()
+    if value > physical:
+        raise argparse.ArgumentTypeError(f"{text!r} is more than this machine's memory "
+                                         f"({physical / 2**30:,.1f} GiB)")
     return value
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("wavefront")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        return "unknown"
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="wavefront", description="A NumPy wavefront path tracer.")
+    parser.add_argument("--version", action="version", version=f"wavefront {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render a YAML scene to PNG, EXR or NPY")
     r.add_argument("scene", help="YAML scene file")
     r.add_argument("-o", "--output", required=True, help="output image: .png (sRGB), .exr or .npy (linear)")
-    r.add_argument("--width", type=_positive_int, help="image width (alone: keeps the aspect ratio)")
-    r.add_argument("--height", type=_positive_int, help="image height (alone: keeps the aspect ratio)")
-    r.add_argument("--spp", type=_positive_int, help="samples per pixel")
-    r.add_argument("--max-depth", type=_positive_int, help="path segments (path) or recursion depth (whitted)")
+    r.add_argument("--width", type=_side, help="image width (alone: keeps the aspect ratio)")
+    r.add_argument("--height", type=_side, help="image height (alone: keeps the aspect ratio)")
+    r.add_argument("--spp", type=_spp, help="samples per pixel")
+    r.add_argument("--max-depth", type=_depth, help="path segments (path) or recursion depth (whitted)")
     r.add_argument("--seed", type=_seed, help="random seed; the same seed gives the same image")
-    r.add_argument("--workers", type=_positive_int, help="processes (default: all cores); the image does not change")
-    r.add_argument("--memory", type=_memory, help="memory budget for the render, e.g. 512M (default 1G)")
+    r.add_argument("--workers", type=_positive_int,
+                   help="processes (default: all cores, fewer if --memory needs it); the image does not change")
+    r.add_argument("--memory", type=_memory,
+                   help="memory budget for the whole process tree, e.g. 512M (default 1G)")
     r.add_argument("--chunk-size", type=_positive_int, help="paths in flight per worker (default: from --memory)")
-    r.add_argument("--checkpoint", metavar="FILE", help="save progress to FILE (.npz) periodically and on exit")
+    r.add_argument("--checkpoint", metavar="FILE.npz", help="save progress to FILE.npz periodically and on exit")
     r.add_argument("--checkpoint-interval", type=_positive_float, default=30.0, metavar="SECONDS",
                    help="seconds between checkpoints (default 30)")
-    r.add_argument("--resume", metavar="FILE", help="continue the render saved in checkpoint FILE")
+    r.add_argument("--resume", metavar="FILE.npz", help="continue the render saved in checkpoint FILE.npz")
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="render on a Dask cluster: tcp://HOST:8786, or local:N to start N local workers")
     r.add_argument("--frames", type=_positive_int, metavar="N",
@@ -93,61 +146,114 @@ def _warn_line(message, category, filename, lineno, file=None, line=None):
     print(f"wavefront: warning: {message}", file=sys.stderr)
 
 
+class _Signals:
+    """Where the command is decides what a signal means (see the module doc)."""
+
+    def __init__(self):
+        self.rendering = False
+        self.stop = None  # the signal that asked the render to stop
+
+    def __call__(self, signum, frame):
+        if self.rendering and self.stop is None:
+            self.stop = signum
+            return
+        raise Interrupted(signum)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    warnings.showwarning = _warn_line
+    started = time.perf_counter()
+    signals = _Signals()
+    previous = {sig: signal.signal(sig, signals) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        return _render(args)
+        args = build_parser().parse_args(argv)
+        warnings.showwarning = _warn_line
+        return _render(args, signals, started)
+    except Interrupted as e:
+        name = signal.Signals(e.signum).name
+        print(f"wavefront: interrupted ({name}); nothing was written", file=sys.stderr)
+        return 128 + e.signum
     except KeyboardInterrupt:
-        print("wavefront: interrupted", file=sys.stderr)
-        return 130
+        print("wavefront: interrupted; nothing was written", file=sys.stderr)
+        return 128 + signal.SIGINT
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def frame_paths(output: str, frames: int | None) -> list[str]:
     """Output path of each frame: ``{frame}`` formatted, or ``_0000`` before the extension."""
     if frames is None:
+        if "{frame" in output:
+            raise ValueError(f"{output}: names {{frame}} but --frames was not given")
         return [output]
     if "{frame" in output:
         try:
-            return [output.format(frame=k) for k in range(frames)]
-        except (ValueError, KeyError, IndexError) as e:
+            paths = [output.format(frame=k) for k in range(frames)]
+        except (ValueError, KeyError, IndexError, AttributeError, TypeError) as e:
             raise ValueError(f"{output}: bad {{frame}} pattern ({e})") from None
-    stem, ext = os.path.splitext(output)
-    return [f"{stem}_{k:04d}{ext}" for k in range(frames)]
+    else:
+        stem, ext = os.path.splitext(output)
+        paths = [f"{stem}_{k:04d}{ext}" for k in range(frames)]
+    if len(set(paths)) != len(paths):
+        raise ValueError(f"{output}: the {{frame}} pattern gives two frames the same file name")
+    return paths
 
 
-def _render(args) -> int:
-    from .output import OutputError, check_output_path, write_image
-    from .render import DEFAULT_MEMORY, CheckpointError, image_bytes, render_scene
+def check_paths(args) -> list[str]:
+    """Check every file the command reads or writes, before anything else.
+
+    Returns the output path of each frame.  Raises ``OutputError``.
+    """
+    from .output import OutputError, check_output_path, same_file
+
+    if args.frames is not None and (args.checkpoint or args.resume):
+        raise OutputError("--checkpoint and --resume work on single images, not --frames")
+    try:
+        outputs = frame_paths(args.output, args.frames)
+    except ValueError as e:
+        raise OutputError(str(e)) from None
+    for out in outputs:
+        check_output_path(out)
+    writes = [("-o", out) for out in outputs]
+    if args.checkpoint is not None:
+        if not args.checkpoint.endswith(".npz"):
+            raise OutputError(f"{args.checkpoint}: a checkpoint file name must end in .npz (--checkpoint)")
+        check_output_path(args.checkpoint, image=False)
+        writes.append(("--checkpoint", args.checkpoint))
+    for i, (flag, path) in enumerate(writes):
+        for other_flag, other in writes[:i]:
+            if same_file(path, other):
+                raise OutputError(f"{path}: {other_flag} and {flag} name the same file")
+        reads = [("the scene", args.scene)] + ([("--resume", args.resume)] if args.resume else [])
+        for what, source in reads:
+            if what == "--resume" and flag == "--checkpoint":
+                continue  # resuming and saving to the same checkpoint is how a render is continued
+            if same_file(path, source):
+                raise OutputError(f"{path}: {flag} would overwrite {what}")
+    if args.resume is not None:
+        if not os.path.exists(args.resume):
+            raise OutputError(f"{args.resume}: no such checkpoint file")
+        if not os.path.isfile(args.resume):
+            raise OutputError(f"{args.resume}: not a regular file (--resume)")
+    return outputs
+
+
+def _render(args, signals: _Signals, started: float) -> int:
+    from .film import CheckpointError
+    from .output import OutputError, encode_bytes, write_image
+    from .render import DEFAULT_MEMORY, MemoryBudgetError, phase_peak, render_scene
     from .scene import turntable
     from .scenefile import SceneError, load_scene
 
     memory = args.memory or DEFAULT_MEMORY
     try:
-        if args.frames is not None and (args.checkpoint or args.resume):
-            raise OutputError("--checkpoint and --resume work on single images, not --frames")
-        try:
-            outputs = frame_paths(args.output, args.frames)
-        except ValueError as e:
-            raise OutputError(str(e)) from None
-        for out in outputs:
-            check_output_path(out)
-        for path in (args.checkpoint, args.resume):
-            if path is not None and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
-                raise OutputError(f"{path}: directory does not exist")
-        if args.resume is not None and not os.path.isfile(args.resume):
-            raise OutputError(f"{args.resume}: no such checkpoint file")
+        outputs = check_paths(args)
         scene = load_scene(args.scene)
-        scene = scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
-                                     max_depth=args.max_depth, seed=args.seed)
-        needed = image_bytes(scene.width, scene.height)
-        if needed > memory:
-            raise OutputError(f"{scene.width}x{scene.height}: the image alone needs about "
-                              f"{needed / 2**20:,.0f} MiB, more than the memory budget of "
-                              f"{memory / 2**20:,.0f} MiB (--memory)")
+        scene = _with_flags(scene, args)
     except (SceneError, OutputError) as e:
         print(f"wavefront: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    loaded = time.perf_counter()
 
     executor, client, workers = None, None, args.workers
     if args.scheduler is not None:
@@ -161,62 +267,58 @@ def _render(args) -> int:
         executor = dask_executor(client)
         workers = max(1, len(client.scheduler_info().get("workers", {})))
 
-    scenes = [scene] if args.frames is None else [turntable(scene, k, args.frames) for k in range(args.frames)]
+    frames = [scene] if args.frames is None else [turntable(scene, k, args.frames) for k in range(args.frames)]
+    samples_per_frame = scene.width * scene.height * scene.render.samples_per_pixel
     bar = None
     if not args.quiet and sys.stderr.isatty():
         from tqdm import tqdm
 
-        bar = tqdm(total=len(scenes) * scene.width * scene.height * scene.render.samples_per_pixel,
-                   unit="samples", unit_scale=True, file=sys.stderr, leave=False)
-
-    # Ctrl-C or SIGTERM asks the render to stop and keep what it has; a
-    # second Ctrl-C gives up at once.
-    stop = {"signal": None}
-
-    def request_stop(signum, frame):
-        if stop["signal"] is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        stop["signal"] = signum
-
-    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+        bar = tqdm(total=len(frames) * samples_per_frame, unit="samples", unit_scale=True, file=sys.stderr,
+                   leave=False)
     try:
-        for k, (frame_scene, out) in enumerate(zip(scenes, outputs)):
-            offset = k * scene.width * scene.height * scene.render.samples_per_pixel
-
-            def progress(done: int, total: int, offset=offset) -> None:
+        for k, (frame_scene, out) in enumerate(zip(frames, outputs)):
+            def progress(done: int, total: int, offset=k * samples_per_frame) -> None:
                 if bar is not None:
                     bar.update(offset + done - bar.n)
 
+            signals.rendering = True
             try:
                 result = render_scene(frame_scene, workers=workers, memory=memory, chunk_size=args.chunk_size,
-                                      progress=progress, should_stop=lambda: stop["signal"] is not None,
+                                      progress=progress, should_stop=lambda: signals.stop is not None,
                                       checkpoint=args.checkpoint, checkpoint_interval=args.checkpoint_interval,
-                                      resume=args.resume, executor=executor)
-            except CheckpointError as e:
+                                      resume=args.resume, executor=executor,
+                                      output_bytes=encode_bytes(scene.width, scene.height, out))
+            except (CheckpointError, MemoryBudgetError, OutputError) as e:
                 print(f"wavefront: error: {e}", file=sys.stderr)
                 return EXIT_BAD_INPUT
+            finally:
+                signals.rendering = False
             s = result.stats
-            metadata = {"Software": "wavefront", "wavefront.scene": scene.name, "wavefront.seed": s.seed,
-                        "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
+            metadata = {"Software": f"wavefront {_version()}", "wavefront.scene": scene.name,
+                        "wavefront.seed": s.seed, "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
                         "wavefront.partial": "yes" if s.partial else "no",
                         "wavefront.units": f"{s.units_done}/{s.units_total}"}
             if args.frames is not None:
                 metadata["wavefront.frame"] = f"{k}/{args.frames}"
-            try:
-                write_image(out, result.image, metadata)
-            except OSError as e:
-                print(f"wavefront: error: {out}: cannot write: {e.strerror or e}", file=sys.stderr)
-                return EXIT_BAD_INPUT
+            write_start = time.perf_counter()
+            failure = _write_or_rescue(out, result.film, metadata)
+            s.peak_memory = max(s.peak_memory, phase_peak(reset=False))
             if not args.quiet:
                 if bar is not None:
                     bar.clear()
-                print(summary_line(frame_scene, s, out), file=sys.stderr)
-            if stop["signal"] is not None:
-                return 128 + stop["signal"]  # the shell's convention for "ended by this signal"
+                timing = Timing(load=loaded - started if k == 0 else 0.0, render=s.elapsed,
+                                write=time.perf_counter() - write_start,
+                                total=process_age(time.perf_counter() - started))
+                print(summary_line(frame_scene, s, out, timing), file=sys.stderr)
+            if failure is not None or s.checkpoint_error is not None:
+                for message in (failure, s.checkpoint_error):
+                    if message is not None:
+                        print(f"wavefront: error: {message}", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            if signals.stop is not None:
+                return 128 + signals.stop  # the shell's convention for "ended by this signal"
         return 0
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         if bar is not None:
             bar.close()
         if client is not None:
@@ -225,11 +327,80 @@ def _render(args) -> int:
                 client.cluster.close()
 
 
-def summary_line(scene, s, output: str) -> str:
+def _with_flags(scene, args):
+    """The scene with the command line's overrides, under the scene file's
+    own limits; a violation names the flags, not a YAML path."""
+    from .scenefile import SceneError
+
+    try:
+        return scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
+                                    max_depth=args.max_depth, seed=args.seed)
+    except SceneError as e:
+        flags = " ".join(f"--{name.replace('_', '-')} {value}" for name, value in vars(args).items()
+                         if name in ("width", "height", "spp", "max_depth", "seed") and value is not None)
+        raise SceneError(args.scene, f"with {flags}", getattr(e, "problem", str(e))) from None
+
+
+def _write_or_rescue(out: str, film, metadata) -> str | None:
+    """Write the image; if that fails after all the checks, save it elsewhere.
+
+    Returns None on success, else the message to print: what failed and
+    where the image went instead.  A finished render is never lost to a
+    full disk or a directory removed while it ran.
+    """
+    from .output import OutputError, write_image
+
+    try:
+        write_image(out, film, metadata)
+        return None
+    except (OSError, OutputError) as e:
+        problem = f"{out}: cannot write: {getattr(e, 'strerror', None) or e}"
+    ext = os.path.splitext(out)[1].lower()
+    for directory in dict.fromkeys((tempfile.gettempdir(), os.getcwd(), os.path.expanduser("~"))):
+        for suffix in dict.fromkeys((ext, ".npy")):
+            try:
+                fd, rescue = tempfile.mkstemp(prefix="wavefront-rescued-", suffix=suffix, dir=directory)
+            except OSError:
+                continue
+            os.close(fd)
+            try:
+                write_image(rescue, film, metadata)
+                return f"{problem}; the image was saved to {rescue} instead"
+            except (OSError, OutputError):
+                os.unlink(rescue)
+    return f"{problem}; no other place to save the image was writable either"
+
+
+class Timing:
+    """Seconds spent in each part of the command, for the summary."""
+
+    def __init__(self, load: float, render: float, write: float, total: float):
+        self.load, self.render, self.write, self.total = load, render, write, total
+
+
+def process_age(fallback: float) -> float:
+    """Seconds since this process started (interpreter start-up included),
+    from ``/proc``; ``fallback`` where that is not available."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        age = uptime - start_ticks / os.sysconf("SC_CLK_TCK")
+        return age if age >= fallback else fallback
+    except (OSError, ValueError, IndexError):
+        return fallback
+
+
+def summary_line(scene, s, output: str, timing: Timing | None = None) -> str:
     rate = lambda n: n / s.elapsed if s.elapsed > 0 else float("inf")  # noqa: E731
-    parts = [
-        f"{output}: {scene.width}x{scene.height}, {scene.render.samples_per_pixel} spp",
-        f"{s.elapsed:.2f} s",
+    parts = [f"{output}: {scene.width}x{scene.height}, {scene.render.samples_per_pixel} spp"]
+    if timing is None:
+        parts.append(f"render {s.elapsed:.2f} s")
+    else:
+        parts.append(f"render {timing.render:.2f} s, total {timing.total:.2f} s "
+                     f"(load {timing.load:.2f} s, write {timing.write:.2f} s)")
+    parts += [
         f"{rate(s.samples) / 1e6:.2f} M samples/s",
         f"{rate(s.segments) / 1e6:.2f} M path segments/s",
         f"peak memory {s.peak_memory / 2**20:.0f} MiB",
@@ -239,7 +410,9 @@ def summary_line(scene, s, output: str) -> str:
     if s.dropped:
         parts.append(f"{s.dropped} non-finite samples dropped")
     if s.partial:
-        parts.append(f"PARTIAL ({s.units_done}/{s.units_total} units)")
+        parts.append(f"PARTIAL ({s.units_done}/{s.units_total} units"
+                     + (f", {s.pixels_without_samples} pixels without samples" if s.pixels_without_samples else "")
+                     + ")")
     return ", ".join(parts)
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import uuid
 
-from .render import POLL_SECONDS, RenderInterrupted, execute, tune_allocator
+from .render import POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute, tune_allocator
 from .sampling import scene_key
 
 CONNECT_TIMEOUT = "5s"  # an address that does not answer is reported within seconds
@@ -71,13 +71,23 @@ def dask_executor(client):
     def run(scene, capacity, tasks, merge, stopped):
         token = uuid.uuid4().hex  # names this render's tasks and its cached scene
         scene_future = client.scatter(scene, broadcast=True, hash=False)
-        futures = [client.submit(_remote_execute, scene_future, token, capacity, units,
-                                 key=f"wavefront-{token}-{i}", pure=False)
-                   for i, units in enumerate(tasks)]
-        index = {f.key: i for i, f in enumerate(futures)}
-        remaining = set(futures)
-        pending, next_index = {}, 0
+        # A window of tasks in flight, a few per worker, refilled as results
+        # are merged: the plan is never materialised, however long it is.
+        window = TASKS_IN_FLIGHT * max(1, len(client.scheduler_info().get("workers", {})))
+        tasks = enumerate(tasks)
+        index, remaining, pending, next_index = {}, set(), {}, 0
+
+        def submit() -> None:
+            for i, units in tasks:
+                future = client.submit(_remote_execute, scene_future, token, capacity, units,
+                                       key=f"wavefront-{token}-{i}", pure=False)
+                index[future.key] = i
+                remaining.add(future)
+                return
+
         try:
+            for _ in range(window):
+                submit()
             while remaining:
                 if stopped():
                     raise RenderInterrupted
@@ -87,12 +97,13 @@ def dask_executor(client):
                     continue
                 for future in done:
                     remaining.discard(future)
-                    pending[index[future.key]] = future.result()  # re-raises a task's error
+                    pending[index.pop(future.key)] = future.result()  # re-raises a task's error
                 while next_index in pending:  # merge strictly in task order
                     merge(pending.pop(next_index))
                     next_index += 1
+                    submit()
         finally:
-            client.cancel(futures)
+            client.cancel(list(remaining))
             client.cancel(scene_future)
 
     return run

@@ -1,26 +1,47 @@
-"""Writing images: PNG (8-bit sRGB), EXR (linear half/float), NPY (linear float32).
+"""Writing images (PNG 8-bit sRGB, EXR linear float, NPY linear float32) and
+the policy every file the renderer writes follows.
 
-All writers go through a temporary file in the destination directory that is
-renamed over the target only when complete, so a failed or interrupted write
-never leaves a half-written or clobbered image.  :func:`check_output_path`
-runs before rendering so a bad destination is reported in a second, not after
-an hour of rendering.
+* Everything is written to a temporary file in the destination's directory
+  and renamed over the target only when complete, so a failed or interrupted
+  write never leaves a half-written or clobbered file.
+* Only regular files are ever replaced.  A FIFO, a device node, a socket or a
+  directory at the destination is refused before rendering, and again just
+  before the rename.
+* A symlink is written *through*: its target is replaced and the link stays
+  (as ``cp`` and shell redirection do).
+* A read-only file (no write bit for anyone) is never overwritten, even by
+  root: making a file read-only is how a user protects it.  An existing
+  writable file keeps its permission bits (and, for root, its owner).
+* :func:`check_output_path` runs before rendering so a bad destination is
+  reported in a second, not after an hour of rendering.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import stat
 import tempfile
 import warnings
 
 import numpy as np
 
 FORMATS = (".png", ".exr", ".npy")
-ENCODE_ROWS = 256  # sRGB-encode PNGs in strips of rows to bound peak memory
+ENCODE_ROWS = 256  # encode in strips of rows to bound peak memory
+
+# Bytes per pixel the parent holds while writing each format, on top of the
+# film (measured with ``benchmarks/bench.py --section budget``): PNG keeps the
+# 8-bit image and Pillow's 4-byte-per-pixel copy of it; EXR the float32 image
+# and OpenEXR's per-channel copy; NPY streams rows from the film.
+ENCODE_BYTES_PER_PIXEL = {".png": 3 + 4, ".exr": 12 + 12, ".npy": 0}
+# Importing colour-science (PNG only) maps this much, measured.
+COLOUR_IMPORT_BYTES = 64 << 20
+# Strip temporaries: float64 RGB rows and a few working copies of them.
+STRIP_BYTES_PER_PIXEL = 6 * 3 * 8
 
 
 class OutputError(ValueError):
-    """The output path cannot be written."""
+    """An output path cannot or must not be written."""
 
 
 def output_format(path: str) -> str:
@@ -31,82 +52,164 @@ def output_format(path: str) -> str:
     return ext
 
 
-def check_output_path(path: str) -> None:
-    """Fail early if ``path`` has an unknown extension or cannot be written.
+def encode_bytes(width: int, height: int, path: str) -> int:
+    """Peak bytes the parent needs to write a ``width`` x ``height`` image to ``path``."""
+    ext = output_format(path)
+    strip = min(height, ENCODE_ROWS) * width * STRIP_BYTES_PER_PIXEL
+    extra = COLOUR_IMPORT_BYTES if ext == ".png" else 0
+    return width * height * ENCODE_BYTES_PER_PIXEL[ext] + strip + extra
 
-    The directory is probed by creating and removing a temporary file there,
-    the same way the image will be written: permission bits alone do not
-    tell (root passes ``os.access`` on read-only mounts and in ``/proc``).
+
+def resolve_target(path: str) -> str:
+    """The file a write to ``path`` replaces: symlinks followed, absolute."""
+    return os.path.realpath(path)
+
+
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _refuse_unless_replaceable(path: str, st: os.stat_result) -> None:
+    if not stat.S_ISREG(st.st_mode):
+        kind = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
+        raise OutputError(f"{path}: is {kind}; wavefront only ever replaces regular files")
+    if not st.st_mode & 0o222:
+        raise OutputError(f"{path}: is read-only (mode {stat.S_IMODE(st.st_mode):o}); wavefront does not "
+                          "overwrite read-only files: make it writable or remove it first")
+
+
+def check_output_path(path: str, *, image: bool = True) -> str:
+    """Fail early if ``path`` cannot or must not be written; return its target.
+
+    ``image`` checks the extension is an image format.  The directory is
+    probed by creating and removing a temporary file there, the same way the
+    file will be written: permission bits alone do not tell (root passes
+    ``os.access`` on read-only mounts and in ``/proc``).
     """
-    output_format(path)
-    directory = os.path.dirname(os.path.abspath(path)) or "."
+    if image:
+        output_format(path)
+    target = resolve_target(path)
+    try:
+        st = os.stat(target)
+    except FileNotFoundError:
+        st = None
+    except OSError as e:
+        raise OutputError(f"{path}: {e.strerror or e}") from None
+    if st is not None:
+        _refuse_unless_replaceable(path, st)
+    directory = os.path.dirname(target)
     if not os.path.isdir(directory):
         raise OutputError(f"{path}: directory {directory} does not exist")
-    if os.path.isdir(path):
-        raise OutputError(f"{path}: is a directory")
-    if os.path.exists(path) and not os.access(path, os.W_OK):
-        raise OutputError(f"{path}: file is not writable")
     try:
         fd, probe = tempfile.mkstemp(prefix=".wavefront-probe-", dir=directory)
     except OSError as e:
         raise OutputError(f"{path}: cannot write in {directory} ({e.strerror or e})") from None
     os.close(fd)
     os.unlink(probe)
+    return target
+
+
+def same_file(a: str, b: str) -> bool:
+    """Whether two paths name one file (through symlinks and hard links)."""
+    ta, tb = resolve_target(a), resolve_target(b)
+    if ta == tb:
+        return True
+    try:
+        sa, sb = os.stat(ta), os.stat(tb)
+    except OSError:
+        return False
+    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
 
 
 def encode_srgb8(image: np.ndarray) -> np.ndarray:
     """Linear RGB (H, W, 3) -> 8-bit sRGB with colour-science's transfer function.
 
     Values are clamped to [0, 1] before encoding (no tone mapping), as in the
-    books, and rounded to nearest.
+    books, and rounded to nearest.  ``image`` may also be a row source (see
+    :func:`write_image`).
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # colour warns that matplotlib is absent
         import colour
-    out = np.empty(image.shape, dtype=np.uint8)
-    for r0 in range(0, image.shape[0], ENCODE_ROWS):
-        strip = np.clip(np.nan_to_num(image[r0:r0 + ENCODE_ROWS].astype(np.float64), nan=0.0), 0.0, 1.0)
+    height, width, rows = _row_source(image)
+    out = np.empty((height, width, 3), dtype=np.uint8)
+    for r0 in range(0, height, ENCODE_ROWS):
+        r1 = min(height, r0 + ENCODE_ROWS)
+        strip = np.clip(np.nan_to_num(rows(r0, r1).astype(np.float64), nan=0.0), 0.0, 1.0)
         encoded = colour.cctf_encoding(strip, function="sRGB")
-        out[r0:r0 + ENCODE_ROWS] = np.clip(np.rint(encoded * 255.0), 0, 255).astype(np.uint8)
+        out[r0:r1] = np.clip(np.rint(encoded * 255.0), 0, 255).astype(np.uint8)
     return out
 
 
-def write_image(path: str, image: np.ndarray, metadata: dict[str, str] | None = None) -> None:
-    """Write a linear float image of shape (H, W, 3) atomically.
+def _row_source(image):
+    """(height, width, rows(y0, y1) -> float32 (rows, W, 3)) for an array or a film."""
+    if isinstance(image, np.ndarray):
+        return image.shape[0], image.shape[1], lambda a, b: image[a:b]
+    return image.height, image.width, image.rows
 
+
+def write_image(path: str, image, metadata: dict[str, str] | None = None) -> None:
+    """Write a linear float image atomically, following the module's policy.
+
+    ``image`` is an array of shape (H, W, 3) or a row source with
+    ``height``, ``width`` and ``rows(y0, y1)`` (a :class:`~wavefront.film.Film`),
+    which PNG and NPY encode strip by strip without the whole float image.
     ``metadata`` goes into PNG text chunks and EXR header attributes.
     """
     ext = output_format(path)
     metadata = {k: str(v) for k, v in (metadata or {}).items()}
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".wavefront-", suffix=ext, dir=directory)
+    target = resolve_target(path)
+    fd, tmp = tempfile.mkstemp(prefix=".wavefront-", suffix=ext, dir=os.path.dirname(target))
     try:
         with os.fdopen(fd, "wb") as f:
             if ext == ".npy":
-                np.save(f, np.ascontiguousarray(image, dtype=np.float32))
+                _write_npy(f, image)
             elif ext == ".png":
                 _write_png(f, image, metadata)
         if ext == ".exr":
             _write_exr(tmp, image, metadata)
-        publish(tmp, path)
+        publish(tmp, target, path)
     except BaseException:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        except FileNotFoundError:
-            pass
         raise
 
 
-def publish(tmp: str, path: str) -> None:
-    """Give a finished temporary file normal permissions and move it into place."""
-    os.chmod(tmp, 0o666 & ~_umask())
-    os.replace(tmp, path)
+def publish(tmp: str, target: str, shown: str | None = None) -> None:
+    """Move a finished temporary file over ``target`` (a resolved path).
+
+    Refuses, at the last moment too, to replace anything but a writable
+    regular file; an existing file's permission bits (and owner, for root)
+    carry over, a new one gets the usual ``0666 & ~umask``.
+    """
+    try:
+        st = os.lstat(target)
+    except FileNotFoundError:
+        st = None
+    if st is not None:
+        _refuse_unless_replaceable(shown or target, st)
+        os.chmod(tmp, stat.S_IMODE(st.st_mode))
+        if os.geteuid() == 0:
+            with contextlib.suppress(OSError):
+                os.chown(tmp, st.st_uid, st.st_gid)
+    else:
+        os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, target)
 
 
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def _write_npy(f, image) -> None:
+    height, width, rows = _row_source(image)
+    header = {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float32)), "fortran_order": False,
+              "shape": (height, width, 3)}
+    np.lib.format.write_array_header_1_0(f, header)  # what np.save writes for such a header
+    for r0 in range(0, height, ENCODE_ROWS):
+        f.write(np.ascontiguousarray(rows(r0, min(height, r0 + ENCODE_ROWS)), dtype=np.float32).tobytes())
 
 
 def _write_png(f, image, metadata) -> None:
@@ -122,9 +225,10 @@ def _write_png(f, image, metadata) -> None:
 def _write_exr(path, image, metadata) -> None:
     import OpenEXR
 
+    height, width, rows = _row_source(image)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update(metadata)  # the same keys as the PNG text chunks
-    channels = {"RGB": np.ascontiguousarray(image, dtype=np.float32)}
+    channels = {"RGB": np.ascontiguousarray(rows(0, height), dtype=np.float32)}
     with OpenEXR.File(header, channels) as exr:
         exr.write(path)
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .batch import PathBatch
-from .film import Job
+from .units import Job
 from .materials import scatter_dielectric, scatter_lambertian, scatter_metal
 from .sampling import bounce_dimension, path_state, uniform_pairs, uniform_pairs_at
 from .scene import CompiledScene

@@ -1,49 +1,69 @@
-"""The render driver: units of work, the local process pool, the film.
+"""The render driver: tasks of units, the memory budget, the process pool.
 
-The render is a fixed list of units (:mod:`wavefront.film`) grouped into
+The render is a fixed plan of units (:mod:`wavefront.units`) grouped into
 tasks of a few wavefronts' worth of samples.  Tasks run inline or on a process
-pool; their results are merged in task order, so the image does not depend on
-the worker count, and the chunk size (wavefront capacity) only decides how
-many paths are in flight, never which random numbers a path sees.
+pool; their results are merged into the film (:mod:`wavefront.film`) in task
+order, so the image does not depend on the worker count, and the chunk size
+(wavefront capacity) only decides how many paths are in flight, never which
+random numbers a path sees.
+
+Memory: the budget covers the whole process tree.  Before rendering, the
+parent measures what it holds (interpreter, modules, the compiled scene and
+its acceleration structure), adds the film, each worker's share (a forked
+worker's resident set starts as the parent's) and the cost of writing the
+image, and picks the number of workers and the wavefront size to fit, or
+refuses with the estimate (:func:`plan_memory`).  Tasks are planned lazily
+and only a few are in flight, so nothing grows with the sample count.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
-import hashlib
 import multiprocessing
 import os
 import resource
 import signal
-import tempfile
+import threading
 import time
-import zipfile
+import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
-from .film import Job, Unit, plan_units
-from .output import publish
+from .film import FILM_BYTES_PER_PIXEL, CheckpointError, Film, load_checkpoint, save_checkpoint
+from .output import OutputError, check_output_path
 from .path import TraceStats, trace_paths
 from .sampling import scene_key
 from .scene import CompiledScene, Scene
+from .units import Job, Unit, UnitPlan
 
 MiB = 1024 * 1024
 DEFAULT_MEMORY = 1024 * MiB  # whole render, all processes
-# Measured bytes per path in flight, the batch and every per-bounce temporary
-# included; see ``benchmarks/bench.py --section capacity``.
+# Measured bytes per path in flight, the batch, every per-bounce temporary and
+# the task's per-sample radiance included; see ``benchmarks/bench.py --section capacity``.
 BYTES_PER_PATH = 1500
 MAX_CAPACITY = 1 << 16  # larger wavefronts fall out of cache and get slower
-MIN_CAPACITY = 256
-BASE_PROCESS_BYTES = 80 * MiB  # interpreter + NumPy + scene in each worker
+MIN_CAPACITY = 256  # below this NumPy's fixed cost per call dominates
+# Below this many paths in flight a worker is not worth its share of the
+# budget (each costs a copy of the parent's resident set): use fewer workers.
+GOOD_CAPACITY = 4096
 TASK_WAVEFRONTS = 4  # a task holds about this many wavefronts' samples
-FLOAT32_MAX = float(np.finfo(np.float32).max)
+TASKS_IN_FLIGHT = 2  # per worker: one running, one queued, so no worker waits
+# A finished task's pixel sums held by the parent until merged: at worst one
+# sample per pixel, so as many float64 RGB sums as samples.
+RESULT_BYTES_PER_SAMPLE = 3 * 8
+
+
+class MemoryBudgetError(ValueError):
+    """The render cannot fit in the memory budget at all."""
 
 
 @dataclass
 class RenderStats:
     seed: int = 0
-    elapsed: float = 0.0
+    elapsed: float = 0.0  # seconds: compiling, planning, rendering, forming the film
     samples: int = 0
     segments: int = 0
     dropped: int = 0  # non-finite samples left out of their pixel
@@ -51,7 +71,13 @@ class RenderStats:
     units_total: int = 0
     workers: int = 1
     capacity: int = 0
-    peak_memory: int = 0  # bytes: parent's peak + each worker's peak (an upper bound)
+    # Bytes: peak resident memory of the whole process tree, an upper bound
+    # (the parent's peak plus every worker's); callers that go on to write
+    # the image raise it to the parent's peak while writing.
+    peak_memory: int = 0
+    memory_estimate: int = 0  # what the plan expected the peak to be
+    pixels_without_samples: int = 0
+    checkpoint_error: str | None = None  # a checkpoint that could not be written
 
     @property
     def partial(self) -> bool:
@@ -60,48 +86,189 @@ class RenderStats:
 
 @dataclass
 class RenderResult:
-    image: np.ndarray  # (H, W, 3) float32, linear, row 0 at the top
+    film: Film
     stats: RenderStats = field(default_factory=RenderStats)
 
-
-def image_bytes(width: int, height: int) -> int:
-    """Memory the image itself needs, whatever the budget: the film (float64
-    sums, uint32 counts), the float32 result and its 8-bit encoding."""
-    return width * height * (3 * 8 + 4 + 3 * 4 + 3)
-
-
-def capacity_for(memory: int, workers: int) -> int:
-    """Paths in flight per worker so all workers fit in ``memory`` bytes."""
-    per_worker = memory // max(1, workers) - BASE_PROCESS_BYTES
-    return int(np.clip(per_worker // BYTES_PER_PATH, MIN_CAPACITY, MAX_CAPACITY))
+    @cached_property
+    def image(self) -> np.ndarray:
+        """(H, W, 3) float32, linear, row 0 at the top."""
+        return self.film.image()
 
 
-def plan_tasks(units: list[Unit], capacity: int, workers: int = 1) -> list[list[Unit]]:
-    """Consecutive units grouped into tasks that shrink towards the end.
+# --- memory ------------------------------------------------------------------
+
+def _libc():
+    try:
+        import ctypes
+
+        return ctypes.CDLL("libc.so.6", use_errno=True)
+    except OSError:
+        return None
+
+
+def current_rss() -> int:
+    """This process's resident memory now, in bytes."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return peak_rss()
+
+
+def peak_rss() -> int:
+    """This process's peak resident memory since start (or the last reset)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _vm_hwm() -> int | None:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+def phase_peak(reset: bool = True) -> int:
+    """Peak resident memory of this process since the last call, then reset.
+
+    Linux resets the high-water mark on writing 5 to ``/proc/self/clear_refs``;
+    where that fails the peak since start is returned (an upper bound).
+    """
+    value = _vm_hwm()
+    if value is None:
+        return peak_rss()
+    if reset:
+        try:
+            with open("/proc/self/clear_refs", "w") as f:
+                f.write("5")
+        except OSError:
+            pass
+    return value
+
+
+def release_free_memory() -> None:
+    """Hand freed heap pages back to the kernel (glibc ``malloc_trim``), so a
+    forked worker does not inherit, and count, the parent's garbage."""
+    libc = _libc()
+    if libc is not None and hasattr(libc, "malloc_trim"):
+        libc.malloc_trim(0)
+
+
+def physical_memory() -> int:
+    """Memory this machine (or this cgroup, if it has a lower limit) can give."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError):
+        return 1 << 62
+    for limit in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            with open(limit) as f:
+                text = f.read().strip()
+            if text.isdigit():
+                total = min(total, int(text))
+        except OSError:
+            pass
+    return total
+
+
+@dataclass(frozen=True)
+class MemoryPlan:
+    """How the render fits its budget; all sizes in bytes."""
+
+    workers: int
+    capacity: int
+    base: int  # the parent as measured: interpreter, modules, scene, acceleration structure
+    film: int  # film pages the render will still touch
+    per_worker: int  # a worker at rest: the parent's pages it inherits
+    output: int  # writing the image, after the workers have ended
+
+    @property
+    def render_peak(self) -> int:
+        paths = self.capacity * BYTES_PER_PATH
+        if self.workers == 1:  # inline: the parent renders
+            return self.base + self.film + paths
+        results = self.workers * TASKS_IN_FLIGHT * TASK_WAVEFRONTS * self.capacity * RESULT_BYTES_PER_SAMPLE
+        return self.base + self.film + results + self.workers * (self.per_worker + paths)
+
+    @property
+    def peak(self) -> int:
+        return max(self.render_peak, self.base + self.film + self.output)
+
+
+def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int, film: int,
+                per_worker: int, output: int) -> MemoryPlan:
+    """Workers and wavefront size that fit ``memory`` bytes, the most workers first.
+
+    An explicit ``chunk_size`` is kept (fewer workers are used if need be);
+    otherwise the wavefront is as large as fits, up to ``MAX_CAPACITY``, and
+    a worker is dropped rather than run one below ``GOOD_CAPACITY``.
+
+    Raises
+    ------
+    MemoryBudgetError
+        When even one process at the smallest wavefront does not fit; the
+        message gives the estimate.
+    """
+    fallback = None
+    for w in range(workers, 0, -1):
+        plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
+        if chunk_size is None:
+            spare = memory - plan.peak
+            per_path = w * BYTES_PER_PATH + (w * TASKS_IN_FLIGHT * TASK_WAVEFRONTS * RESULT_BYTES_PER_SAMPLE
+                                             if w > 1 else 0)
+            capacity = min(MAX_CAPACITY, MIN_CAPACITY + max(0, spare) // per_path)
+            plan = MemoryPlan(w, capacity, base, film, per_worker, output)
+            # growing the wavefront raises only render_peak; shrink if the estimate rounds over
+            while plan.peak > memory and plan.capacity > MIN_CAPACITY:
+                plan = MemoryPlan(w, max(MIN_CAPACITY, plan.capacity * 7 // 8), base, film, per_worker, output)
+        if plan.peak <= memory:
+            if chunk_size is not None or plan.capacity >= GOOD_CAPACITY or w == 1:
+                return plan
+            fallback = fallback or plan
+    if fallback is not None:
+        return fallback
+    smallest = MemoryPlan(1, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
+    parts = [f"the process and scene {base / MiB:,.0f} MiB"]
+    if film:
+        parts.append(f"the film {film / MiB:,.0f} MiB")
+    if smallest.peak == smallest.base + smallest.film + output:
+        parts.append(f"writing the image {output / MiB:,.0f} MiB")
+    else:
+        parts.append(f"{smallest.capacity} paths in flight {smallest.capacity * BYTES_PER_PATH / MiB:,.1f} MiB")
+    raise MemoryBudgetError(f"the render needs about {smallest.peak / MiB:,.0f} MiB ({', '.join(parts)}), "
+                            f"more than the memory budget of {memory / MiB:,.0f} MiB (--memory)")
+
+
+# --- tasks ---------------------------------------------------------------------
+
+def plan_tasks(plan: UnitPlan, capacity: int, workers: int = 1, first_unit: int = 0):
+    """Consecutive units grouped into tasks that shrink towards the end; lazy.
 
     Guided scheduling: each task takes about 1/(2 * workers) of the samples
     still unplanned (at most TASK_WAVEFRONTS wavefronts, at least one), so
     the first tasks are long and keep every wavefront full, and the last are
     short so no worker finishes long before the others.  Tiles differ in cost
     (sky is cheap), and with four equal tasks one worker of W2 idled for up
-    to a fifth of the wall time.
-    Grouping never changes the image: units are merged in order.
+    to a fifth of the wall time.  Grouping never changes the image: units
+    are merged in order.  Yields lists of units.
     """
-    remaining = sum(unit.size for unit in units)
-    tasks, current, size = [], [], 0
-    target = 0
-    for unit in units:
+    remaining = plan.total_samples - plan.samples_before(first_unit)
+    current, size, target = [], 0, 0
+    for i in range(first_unit, len(plan)):
+        unit = plan[i]
         if not current:
             target = min(TASK_WAVEFRONTS * capacity, max(capacity, remaining // (2 * workers)))
         current.append(unit)
         size += unit.size
         if size >= target:
-            tasks.append(current)
+            yield current
             remaining -= size
             current, size = [], 0
     if current:
-        tasks.append(current)
-    return tasks
+        yield current
 
 
 def tune_allocator() -> None:
@@ -114,11 +281,8 @@ def tune_allocator() -> None:
     Raising the thresholds makes the heap reuse those pages; the peak
     resident memory is unchanged.  No-op where glibc is absent.
     """
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
+    libc = _libc()
+    if libc is None:
         return
     m_trim_threshold, m_mmap_threshold = -1, -3
     libc.mallopt(m_mmap_threshold, 32 * MiB)  # glibc's maximum on 64-bit
@@ -127,10 +291,54 @@ def tune_allocator() -> None:
 
 # --- work done in a worker (or inline) --------------------------------------
 
-_WORKER: dict = {}
+INTEGRATORS = {"path": trace_paths}
 
 
-def _init_worker(scene: Scene, capacity: int, compiled: CompiledScene | None = None, key=None) -> None:
+def integrator(name: str):
+    """The trace function of an integrator, from the registry."""
+    if name not in INTEGRATORS and name == "whitted":
+        from .whitted import trace_whitted
+
+        INTEGRATORS["whitted"] = trace_whitted
+    return INTEGRATORS[name]
+
+
+@dataclass
+class _Worker:
+    """What a process needs to run tasks: set once per process."""
+
+    compiled: CompiledScene
+    key: object
+    capacity: int
+    should_stop: object = None
+
+
+_WORKER: list[_Worker] = []  # at most one: this process's
+
+
+def _die_with_parent(parent: int) -> None:
+    """End this worker when the parent dies, even by SIGKILL.
+
+    Linux's ``PR_SET_PDEATHSIG`` sends the signal when the parent exits;
+    elsewhere a watchdog thread polls the parent id.  Either way no orphan
+    keeps computing and printing broken-pipe tracebacks.
+    """
+    libc = _libc()
+    pr_set_pdeathsig = 1
+    if libc is None or libc.prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0) != 0:
+        def watch():
+            while os.getppid() == parent:
+                time.sleep(0.2)
+            os._exit(1)
+
+        threading.Thread(target=watch, daemon=True).start()
+    if os.getppid() != parent:  # the parent died before the line above
+        os._exit(1)
+
+
+def _init_worker(scene: Scene, capacity: int, parent: int, compiled: CompiledScene | None = None,
+                 key=None) -> None:
+    _die_with_parent(parent)
     # The parent decides what an interrupt means; workers just get
     # terminated.  A forked worker inherits the parent's Python handlers, and
     # one that caught SIGTERM would make Pool.terminate() wait forever.
@@ -139,7 +347,7 @@ def _init_worker(scene: Scene, capacity: int, compiled: CompiledScene | None = N
     tune_allocator()
     compiled = compiled if compiled is not None else scene.compile()
     key = key if key is not None else scene_key(scene.render.seed)
-    _WORKER.update(compiled=compiled, capacity=capacity, key=key)
+    _WORKER[:] = [_Worker(compiled, key, capacity)]
 
 
 def execute(cs: CompiledScene, key, capacity: int, units: list[Unit], should_stop=None):
@@ -153,52 +361,16 @@ def execute(cs: CompiledScene, key, capacity: int, units: list[Unit], should_sto
     # Overflow and NaN are handled by the film (non-finite samples are dropped
     # and counted in the summary), so NumPy's warnings about them are noise.
     with np.errstate(over="ignore", invalid="ignore"):
-        if scene.render.integrator == "whitted":
-            from .whitted import trace_whitted
-
-            radiance = trace_whitted(cs, job, key, capacity, stats, should_stop)
-        else:
-            radiance = trace_paths(cs, job, key, capacity, stats, should_stop)
+        radiance = integrator(scene.render.integrator)(cs, job, key, capacity, stats, should_stop)
     if should_stop is not None and should_stop():
         raise RenderInterrupted  # the trace was cut short: this task's samples are incomplete
-    return job.reduce(radiance), stats, (os.getpid(), _peak_rss())
+    return job.reduce(radiance), stats, (os.getpid(), peak_rss())
 
 
 def run_task(units: list[Unit]):
     """:func:`execute` with the scene this process was initialised with."""
-    return execute(_WORKER["compiled"], _WORKER["key"], _WORKER["capacity"], units, _WORKER.get("should_stop"))
-
-
-def _peak_rss() -> int:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-
-
-class Film:
-    """Per-pixel sums and sample counts, filled in unit order."""
-
-    def __init__(self, width: int, height: int):
-        self.width, self.height = width, height
-        self.sum = np.zeros((3, width * height))
-        # uint32: 4 bytes a pixel instead of 8 (a 4K film is 33 MB less)
-        self.count = np.zeros(width * height, dtype=np.uint32)
-
-    def add(self, unit: Unit, total: np.ndarray, count: np.ndarray) -> None:
-        pixels = unit.pixel_index(self.width)
-        self.sum[:, pixels] += total
-        self.count[pixels] += count.astype(np.uint32)
-
-    def image(self) -> np.ndarray:
-        """Mean of each pixel's samples, (H, W, 3) float32; 0 where none."""
-        out = np.zeros((self.height, self.width, 3), dtype=np.float32)
-        flat = out.reshape(-1, 3)
-        rows = 1 << 20
-        for start in range(0, self.count.size, rows):
-            c = self.count[start:start + rows]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean = np.where(c > 0, self.sum[:, start:start + rows] / c, 0.0)
-            # a finite float64 mean can exceed float32: clamp, never store inf
-            flat[start:start + rows] = np.minimum(mean, FLOAT32_MAX).T
-        return out
+    w = _WORKER[0]
+    return execute(w.compiled, w.key, w.capacity, units, w.should_stop)
 
 
 def render(scene: Scene, **options) -> np.ndarray:
@@ -213,106 +385,99 @@ class RenderInterrupted(Exception):
     """Raised inside a task when the render was asked to stop."""
 
 
-class CheckpointError(ValueError):
-    """A checkpoint file cannot be used to resume this render."""
-
-
-def scene_fingerprint(scene: Scene) -> str:
-    """Identifies everything that decides the image (scene, size, samples, seed)."""
-    return hashlib.sha256(repr(scene).encode()).hexdigest()
-
-
-def save_checkpoint(path: str, scene: Scene, film: Film, units_done: int) -> None:
-    """Write the film and the number of units merged so far, atomically."""
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".wavefront-checkpoint-", suffix=".npz", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, fingerprint=scene_fingerprint(scene), units_done=units_done,
-                     sum=film.sum, count=film.count)
-        publish(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-
-
-def load_checkpoint(path: str, scene: Scene) -> tuple[Film, int]:
-    """The film and units done of a checkpoint made by the same render."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            fingerprint, units_done = str(data["fingerprint"]), int(data["units_done"])
-            film_sum, count = data["sum"], data["count"]
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:
-        raise CheckpointError(f"{path}: not a wavefront checkpoint ({e})") from None
-    if fingerprint != scene_fingerprint(scene):
-        raise CheckpointError(f"{path}: made by a different scene or different settings; "
-                              "resume with the same scene file and flags")
-    film = Film(scene.width, scene.height)
-    if film_sum.shape != film.sum.shape or count.shape != film.count.shape:
-        raise CheckpointError(f"{path}: image size does not match")
-    film.sum[...] = film_sum
-    film.count[...] = count
-    return film, units_done
-
-
 def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFAULT_MEMORY,
                  chunk_size: int | None = None, progress=None, should_stop=None,
                  checkpoint: str | None = None, checkpoint_interval: float = 30.0,
-                 resume: str | None = None, executor=None) -> RenderResult:
+                 resume: str | None = None, executor=None, output_bytes: int | None = None,
+                 compiled: CompiledScene | None = None) -> RenderResult:
     """Render with full control and statistics.
 
     Parameters
     ----------
     scene : Scene
     workers : int, optional
-        Processes to use; default all cores.  The image does not depend on it.
+        Processes to use; default all cores, fewer if the memory budget needs
+        it.  The image does not depend on it.
     memory : int
-        Memory budget in bytes for the whole render; sets the wavefront size.
+        Memory budget in bytes for the whole process tree (scene, acceleration
+        structure, film, every worker, and ``output_bytes`` for writing the
+        image); sets the wavefront size and, if need be, the worker count.
     chunk_size : int, optional
-        Paths in flight per worker, overriding the budget (tests use it to
-        show the image does not depend on it).
+        Paths in flight per worker, instead of as many as the budget allows
+        (tests use it to show the image does not depend on it).
     progress : callable(samples_done: int, samples_total: int), optional
     should_stop : callable() -> bool, optional
         Polled several times a second; when it returns True the render stops
         and returns the samples finished so far (``stats.partial``).
     checkpoint : str, optional
-        File to save progress to every ``checkpoint_interval`` seconds and
-        when the render ends or stops.
+        File (``.npz``) to save progress to every ``checkpoint_interval``
+        seconds and when the render ends or stops.  Checked before
+        rendering; a save that fails later is reported in
+        ``stats.checkpoint_error`` (with a warning) and never loses the image.
     resume : str, optional
         A checkpoint of the same scene and settings to continue from; the
         result is identical to an uninterrupted render.
     executor : callable, optional
         ``executor(scene, capacity, tasks, merge, stopped)`` runs the tasks
-        somewhere else (see :mod:`wavefront.distributed`) and calls ``merge``
-        with each task's result in task order.  Default: inline for one
-        worker, a local process pool for more.
+        (an iterable) somewhere else (see :mod:`wavefront.distributed`) and
+        calls ``merge`` with each task's result in task order.  Default:
+        inline for one worker, a local process pool for more.
+    output_bytes : int, optional
+        Memory needed after the render to use the image (default: the
+        float32 image the API returns).
+    compiled : CompiledScene, optional
+        ``scene`` already compiled (the CLI compiles it while checking it).
 
     Raises
     ------
     CheckpointError
         If ``resume`` is not a checkpoint of this render.
+    MemoryBudgetError
+        If the render cannot fit in ``memory``.
+    OutputError
+        If ``checkpoint`` cannot be written.
     """
     start = time.perf_counter()
     tune_allocator()
-    workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
-    capacity = chunk_size if chunk_size is not None else capacity_for(
-        memory - image_bytes(scene.width, scene.height), workers)
-    units = plan_units(scene.width, scene.height, scene.render.samples_per_pixel)
+    if checkpoint is not None:
+        if not str(checkpoint).endswith(".npz"):
+            raise OutputError(f"{checkpoint}: a checkpoint file name must end in .npz")
+        check_output_path(checkpoint, image=False)
+    pixels = scene.width * scene.height
+    plan = UnitPlan(scene.width, scene.height, scene.render.samples_per_pixel)
     if resume is not None:
-        film, first_unit = load_checkpoint(resume, scene)
+        film, first_unit = load_checkpoint(resume, scene, len(plan))
     else:
         film, first_unit = Film(scene.width, scene.height), 0
+    cs = compiled if compiled is not None or executor is not None else scene.compile()
+    requested = max(1, workers if workers is not None else (os.cpu_count() or 1))
+    release_free_memory()
+    base = current_rss()
+    load_peak = phase_peak()  # loading and compiling; from here on the parent's peak is the render's
+    budget = plan_memory(
+        memory, 1 if executor is not None else requested, chunk_size, base=base,
+        film=0 if resume is not None else pixels * FILM_BYTES_PER_PIXEL, per_worker=base,
+        output=pixels * 3 * 4 if output_bytes is None else output_bytes)
+    capacity = budget.capacity
+    workers = requested if executor is not None else budget.workers
     # Units are merged strictly in order, so "the first k units" describes
     # any partial state exactly; resuming merges the rest in the same order.
-    tasks = plan_tasks(units[first_unit:], capacity, workers)
-    workers = max(1, min(workers, len(tasks)))
-    stats = RenderStats(seed=scene.render.seed, units_done=first_unit, units_total=len(units),
-                        workers=workers, capacity=capacity)
-    total_samples = sum(u.size for u in units)
-    done_samples = sum(u.size for u in units[:first_unit])
+    tasks = plan_tasks(plan, capacity, workers, first_unit)
+    stats = RenderStats(seed=scene.render.seed, units_done=first_unit, units_total=len(plan),
+                        workers=workers, capacity=capacity, memory_estimate=budget.peak)
+    total_samples = plan.total_samples
+    done_samples = plan.samples_before(first_unit)
     worker_peaks: dict[int, int] = {}
     last_save = time.monotonic()
+
+    def save() -> None:
+        if stats.checkpoint_error is not None:
+            return
+        try:
+            save_checkpoint(checkpoint, scene, film, stats.units_done)
+        except (OSError, OutputError) as e:
+            stats.checkpoint_error = f"{checkpoint}: cannot write the checkpoint: {getattr(e, 'strerror', None) or e}"
+            warnings.warn(stats.checkpoint_error, RuntimeWarning, stacklevel=3)
 
     def merge(result) -> None:
         nonlocal last_save, done_samples
@@ -329,7 +494,7 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         if progress is not None:
             progress(done_samples, total_samples)
         if checkpoint is not None and time.monotonic() - last_save >= checkpoint_interval:
-            save_checkpoint(checkpoint, scene, film, stats.units_done)
+            save()
             last_save = time.monotonic()
 
     stopped = lambda: should_stop is not None and bool(should_stop())  # noqa: E731
@@ -337,57 +502,64 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         if executor is not None:
             executor(scene, capacity, tasks, merge, stopped)
         elif workers == 1:
-            _run_inline(scene, capacity, tasks, merge, stopped)
+            _run_inline(cs, capacity, tasks, merge, stopped)
         else:
-            _run_pool(scene, capacity, tasks, merge, stopped, workers)
+            _run_pool(scene, cs, capacity, tasks, merge, stopped, workers)
     except RenderInterrupted:
         pass
     if checkpoint is not None:
-        save_checkpoint(checkpoint, scene, film, stats.units_done)
-    parent = _peak_rss()
+        save()
     worker_peaks.pop(os.getpid(), None)  # inline tasks ran in this process
-    stats.peak_memory = parent + sum(worker_peaks.values())
-    image = film.image()
+    stats.peak_memory = max(load_peak, phase_peak(reset=False) + sum(worker_peaks.values()))
+    stats.pixels_without_samples = film.pixels_without_samples
+    release_free_memory()  # the wavefront's temporaries, before the image is written
     stats.elapsed = time.perf_counter() - start
-    return RenderResult(image, stats)
+    return RenderResult(film, stats)
 
 
 POLL_SECONDS = 0.1  # how often a waiting parent checks for a stop request
 
 
-def _run_inline(scene, capacity, tasks, merge, stopped) -> None:
-    saved = dict(_WORKER)
-    _WORKER.update(compiled=scene.compile(), capacity=capacity, key=scene_key(scene.render.seed),
-                   should_stop=stopped)
+def _run_inline(cs, capacity, tasks, merge, stopped) -> None:
+    saved = list(_WORKER)
+    _WORKER[:] = [_Worker(cs, scene_key(cs.scene.render.seed), capacity, stopped)]
     try:
         for task in tasks:
             if stopped():
                 raise RenderInterrupted
             merge(run_task(task))
     finally:
-        _WORKER.clear()
-        _WORKER.update(saved)
+        _WORKER[:] = saved
 
 
-def _run_pool(scene, capacity, tasks, merge, stopped, workers) -> None:
+def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     fork = "fork" in multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if fork else "spawn")
     # Forked workers inherit the scene compiled and the key derived here:
     # doing both in each of them (first imports of the BVH and of
     # numpy.random included) held back the first tasks by ~40 ms, 8 % of W2.
-    compiled, key = (scene.compile(), scene_key(scene.render.seed)) if fork else (None, None)
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity, compiled, key))
+    compiled, key = (cs, scene_key(scene.render.seed)) if fork else (None, None)
+    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity, os.getpid(), compiled, key))
     try:
-        results = pool.imap(run_task, tasks)  # in task order: the merge order is fixed
-        for _ in tasks:
-            while True:
+        # A bounded window of tasks in flight, merged strictly in task order:
+        # the plan is never materialised, however many samples it has.
+        pending = collections.deque()
+        tasks = iter(tasks)
+
+        def submit() -> None:
+            task = next(tasks, None)
+            if task is not None:
+                pending.append(pool.apply_async(run_task, (task,)))
+
+        for _ in range(TASKS_IN_FLIGHT * workers):
+            submit()
+        while pending:
+            while not pending[0].ready():
                 if stopped():
                     raise RenderInterrupted
-                try:
-                    result = results.next(timeout=POLL_SECONDS)
-                    break
-                except multiprocessing.TimeoutError:
-                    continue
+                pending[0].wait(POLL_SECONDS)
+            result = pending.popleft().get()  # re-raises a task's error
+            submit()
             merge(result)
     finally:
         pool.terminate()

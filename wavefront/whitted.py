@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from .batch import PathBatch
-from .film import Job
+from .units import Job
 from .path import TraceStats, begin_trace, camera_paths
 from .scene import CompiledScene
 from .vecmath import dot, normalize, reflect, refract, schlick
