@@ -92,6 +92,12 @@ def test_bad_scene_exits_2_with_one_message_and_no_output(tmp_path, text, needle
     (("--spp", "0"), "--spp"),
     (("--width", "abc"), "--width"),
     (("--seed", "-4"), "--seed"),
+    # flags obey the scene file's own limits
+    (("--max-depth", "10001"), "--max-depth"),
+    (("--spp", str(2**30)), "--spp"),
+    (("--width", "1000000", "--height", "1000000"), "pixels"),
+    (("--memory", "100T"), "machine's memory"),
+    (("--memory", "1M"), "--memory"),
 ])
 def test_bad_arguments_exit_2(tmp_path, args, needle):
     r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.png", *args)
@@ -109,3 +115,38 @@ def test_bad_output_path_is_reported_before_rendering(tmp_path, name, needle):
     r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / name)  # 100 spp: seconds if it rendered
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr
     assert "samples/s" not in r.stderr and time.monotonic() - start < 30
+
+
+def test_version():
+    r = run("--version")
+    assert r.returncode == 0 and r.stdout.startswith("wavefront ") and r.stdout.split()[1][0].isdigit()
+
+
+def test_summary_gives_render_and_total_time(tmp_path):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "a.png", *SMALL)
+    assert r.returncode == 0, r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    render = float(line.split("render ")[1].split(" s")[0])
+    total = float(line.split("total ")[1].split(" s")[0])
+    load = float(line.split("load ")[1].split(" s")[0])
+    write = float(line.split("write ")[1].split(" s")[0])
+    # the total runs from the process's start: interpreter, imports, loading, rendering and writing
+    assert total >= render + load + write and write > 0
+
+
+def test_distributed_is_reachable_after_import_wavefront():
+    r = subprocess.run([sys.executable, "-c", "import wavefront; print(wavefront.distributed.dask_executor.__name__)"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.strip() == "dask_executor", r.stderr
+
+
+def test_a_small_budget_uses_fewer_workers_or_refuses_with_the_estimate(tmp_path):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "a.npy", "--width", 400, "--spp", 4,
+            "--max-depth", 5, "--workers", 2, "--memory", "64M")
+    assert r.returncode == 0, r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    assert line.endswith(", 1 worker") and int(line.split("peak memory ")[1].split()[0]) <= 64, line
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "big.npy", "--width", 6000, "--height", 4000,
+            "--memory", "64M")
+    assert r.returncode == 2 and "needs about" in r.stderr and "MiB" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "big.npy").exists()

@@ -1,5 +1,6 @@
 """Interrupted, killed and resumed renders; limits; numerical edge cases."""
 
+import os
 import signal
 import subprocess
 import sys
@@ -45,6 +46,79 @@ def test_signal_stops_quickly_and_writes_the_partial_image(tmp_path, sig):
     assert meta["wavefront.partial"] == "yes"
     done, total = map(int, meta["wavefront.units"].split("/"))
     assert 0 < done < total
+
+
+def children_of(pid):
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    if int(f.read().rsplit(")", 1)[1].split()[1]) == pid:
+                        found.append(int(entry))
+            except (OSError, ValueError):
+                pass
+    return found
+
+
+def alive(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc")
+def test_workers_die_with_a_killed_parent(tmp_path):
+    ck = tmp_path / "ck.npz"
+    proc = start(SLOW, "-o", tmp_path / "out.png", "--checkpoint", ck, "--checkpoint-interval", "0.01",
+                 "--workers", 2)
+    wait_for(ck)
+    workers = children_of(proc.pid)
+    assert workers, "no worker processes"
+    proc.kill()  # SIGKILL: the parent cannot tell anyone
+    _, err = proc.communicate(timeout=30)
+    deadline = time.monotonic() + 5
+    while any(alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(alive(w) for w in workers), "orphaned workers still computing"
+    assert "Traceback" not in err and "BrokenPipe" not in err
+
+
+def test_sigterm_while_loading_gives_up_within_a_second(tmp_path):
+    """A scene that is still arriving (a FIFO whose writer has not finished)."""
+    fifo = tmp_path / "scene.yaml"
+    os.mkfifo(fifo)
+    out = tmp_path / "out.png"
+    proc = subprocess.Popen([sys.executable, "-m", "wavefront", "render", str(fifo), "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with open(fifo, "w") as writer:
+        writer.write("spheres:\n")
+        writer.flush()
+        time.sleep(0.5)  # the command is now reading
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    assert time.monotonic() - sent < 1.0
+    assert proc.returncode == 128 + signal.SIGTERM and "interrupted" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_a_render_stopped_after_the_first_pass_has_no_missing_pixels():
+    scene = Scene(spheres=[Sphere((0, 0, -1), 0.5, "m")], materials={"m": Lambertian()}, width=200,
+                  height=130).with_overrides(samples_per_pixel=16)  # 16 spp: one pass of 16 used to be all
+    first_pass = {"done": 0}
+
+    def progress(done, total):
+        first_pass["done"] = done
+
+    result = render_scene(scene, workers=1, chunk_size=4096, progress=progress,
+                          should_stop=lambda: first_pass["done"] >= 200 * 130)
+    s = result.stats
+    assert s.partial and 0 < s.units_done < s.units_total
+    assert s.pixels_without_samples == 0 and (result.film.count >= 1).all()
+    assert result.image.min() > 0  # no black tiles
 
 
 def test_killed_checkpointed_render_resumes_to_the_identical_image(tmp_path):

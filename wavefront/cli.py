@@ -240,7 +240,7 @@ def check_paths(args) -> list[str]:
 
 def _render(args, signals: _Signals, started: float) -> int:
     from .film import CheckpointError
-    from .output import OutputError, encode_bytes, write_image
+    from .output import OutputError, encode_bytes
     from .render import DEFAULT_MEMORY, MemoryBudgetError, phase_peak, render_scene
     from .scene import turntable
     from .scenefile import SceneError, load_scene

@@ -19,7 +19,7 @@ and only a few are in flight, so nothing grows with the sample count.
 from __future__ import annotations
 
 import collections
-import contextlib
+import itertools
 import multiprocessing
 import os
 import resource
@@ -32,7 +32,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .film import FILM_BYTES_PER_PIXEL, CheckpointError, Film, load_checkpoint, save_checkpoint
+from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
 from .output import OutputError, check_output_path
 from .path import TraceStats, trace_paths
 from .sampling import scene_key
@@ -463,6 +463,10 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     # Units are merged strictly in order, so "the first k units" describes
     # any partial state exactly; resuming merges the rest in the same order.
     tasks = plan_tasks(plan, capacity, workers, first_unit)
+    if executor is None and workers > 1:  # no more processes than tasks
+        first = list(itertools.islice(tasks, workers))
+        workers = max(1, len(first))
+        tasks = itertools.chain(first, tasks)
     stats = RenderStats(seed=scene.render.seed, units_done=first_unit, units_total=len(plan),
                         workers=workers, capacity=capacity, memory_estimate=budget.peak)
     total_samples = plan.total_samples

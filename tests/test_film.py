@@ -1,0 +1,149 @@
+"""The film and its checkpoints: fingerprints of the whole scene, files that
+are not checkpoints, and checkpoint writes that fail late."""
+
+import errno
+import hashlib
+import io
+import zipfile
+
+import numpy as np
+import pytest
+
+from wavefront import Lambertian, Scene, Sphere, cli
+from wavefront.film import CheckpointError, Film, _feed, load_checkpoint, save_checkpoint, scene_fingerprint
+
+from .test_cli import SMALL, run
+from .test_furnace import SCENES
+
+
+def tiny_scene(**kw):
+    return Scene(spheres=[Sphere((0, 0, -1), 0.5, "m")], materials={"m": Lambertian()}, width=4, height=3, **kw)
+
+
+def digest(value):
+    h = hashlib.sha256()
+    _feed(h, value)
+    return h.hexdigest()
+
+
+def test_fingerprint_covers_every_element_of_large_arrays():
+    a = np.zeros(100_000)
+    b = a.copy()
+    b[50_000] = 1e-300
+    assert repr(a) == repr(b)  # what the old fingerprint hashed
+    assert digest(a) != digest(b)
+    assert digest(0.1) != digest(0.1 + 2**-56) and digest(1) != digest(1.0) and digest("1") != digest(1)
+
+
+def test_fingerprint_changes_with_any_sphere_of_a_big_scene():
+    spheres = [Sphere((i, 0, -5), 0.25, "m") for i in range(3000)]
+    base = Scene(spheres=spheres, materials={"m": Lambertian()})
+    moved = list(spheres)
+    moved[1500] = Sphere((1500, 0, -5), 0.2500000001, "m")
+    assert scene_fingerprint(base) != scene_fingerprint(base.replace(spheres=moved))
+    assert scene_fingerprint(base) == scene_fingerprint(base.replace(spheres=list(spheres)))
+
+
+def test_round_trip_and_refusals(tmp_path):
+    scene = tiny_scene()
+    film = Film(4, 3)
+    film.sum[:] = np.arange(36).reshape(3, 12)
+    film.count[:] = 7
+    ck = tmp_path / "ck.npz"
+    save_checkpoint(str(ck), scene, film, 5)
+    loaded, done = load_checkpoint(str(ck), scene, units_total=10)
+    assert done == 5 and (loaded.sum == film.sum).all() and (loaded.count == 7).all()
+    with pytest.raises(CheckpointError, match="different scene"):
+        load_checkpoint(str(ck), scene.with_overrides(seed=3), units_total=10)
+    with pytest.raises(CheckpointError, match="out of range"):
+        load_checkpoint(str(ck), scene, units_total=4)
+
+
+def hostile_checkpoint(path, scene, **arrays):
+    """A zip of .npy members like a checkpoint, with the given arrays instead."""
+    members = {"fingerprint": np.array(scene_fingerprint(scene)), "units_done": np.int64(0),
+               "sum": np.zeros((3, 12)), "count": np.zeros(12, dtype=np.uint32)}
+    members.update(arrays)
+    with zipfile.ZipFile(path, "w") as z:
+        for name, value in members.items():
+            buffer = io.BytesIO()
+            np.save(buffer, value)
+            z.writestr(name + ".npy", buffer.getvalue())
+
+
+@pytest.mark.parametrize("arrays", [
+    {"sum": np.zeros((3, 13))},
+    {"count": np.zeros(12, dtype=np.float64)},
+    {"units_done": np.zeros(3)},
+    {"sum": np.array([object()], dtype=object)},
+    {"fingerprint": np.zeros(3)},
+])
+def test_hostile_checkpoints_are_refused_from_their_headers(tmp_path, arrays):
+    scene = tiny_scene()
+    ck = tmp_path / "bad.npz"
+    hostile_checkpoint(ck, scene, **arrays)
+    with pytest.raises(CheckpointError):
+        load_checkpoint(str(ck), scene, units_total=10)
+
+
+@pytest.mark.parametrize("kind", ["npy", "png", "text", "empty"])
+def test_resume_of_a_file_that_is_not_a_checkpoint_is_one_line(tmp_path, kind):
+    path = tmp_path / f"not-a-checkpoint.{kind}"
+    if kind == "npy":
+        np.save(path, np.zeros((3, 3)))
+    elif kind == "png":
+        assert run("render", SCENES / "three_spheres.yaml", "-o", path, *SMALL, "-q").returncode == 0
+    elif kind == "text":
+        path.write_text("hello")
+    else:
+        path.write_bytes(b"")
+    out = tmp_path / "out.png"
+    r = run("render", SCENES / "three_spheres.yaml", "-o", out, "--resume", path, *SMALL)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "not a wavefront checkpoint" in r.stderr
+    assert not out.exists()
+
+
+def test_a_checkpoint_that_fails_late_keeps_the_image(tmp_path, monkeypatch, capsys):
+    import importlib
+
+    render_module = importlib.import_module("wavefront.render")  # wavefront.render is the function
+
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(render_module, "save_checkpoint", full_disk)
+    out = tmp_path / "out.npy"
+    status = cli.main(["render", str(SCENES / "three_spheres.yaml"), "-o", str(out), "--checkpoint",
+                       str(tmp_path / "ck.npz"), *map(str, SMALL), "--workers", "1"])
+    err = capsys.readouterr().err
+    assert status == 2 and "No space left on device" in err and "Traceback" not in err
+    assert np.load(out).shape == (18, 32, 3)  # the finished image was written all the same
+
+
+def test_an_image_that_fails_late_is_rescued(tmp_path, monkeypatch, capsys):
+    import wavefront.output
+
+    real = wavefront.output._write_npy
+    calls = []
+
+    def fails_once(f, image):
+        calls.append(1)
+        if len(calls) == 1:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(f, image)
+
+    monkeypatch.setattr(wavefront.output, "_write_npy", fails_once)
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "rescue"))
+    (tmp_path / "rescue").mkdir()
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    out = tmp_path / "out.npy"
+    status = cli.main(["render", str(SCENES / "three_spheres.yaml"), "-o", str(out), *map(str, SMALL),
+                       "--workers", "1"])
+    err = capsys.readouterr().err
+    assert status == 2 and "saved to" in err and "Traceback" not in err, err
+    rescued = list((tmp_path / "rescue").glob("wavefront-rescued-*.npy"))
+    assert len(rescued) == 1 and str(rescued[0]) in err
+    assert np.load(rescued[0]).shape == (18, 32, 3) and not out.exists()

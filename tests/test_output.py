@@ -1,0 +1,153 @@
+"""The policy for every file wavefront writes: only regular files are replaced,
+symlinks are written through, read-only files are left alone, modes are kept.
+
+Special files are made in a temporary folder (a FIFO, a directory, a Unix
+socket), never taken from the machine's own /dev."""
+
+import os
+import socket
+import stat
+
+import numpy as np
+import pytest
+
+from wavefront.film import Film, save_checkpoint
+from wavefront.output import OutputError, check_output_path, same_file, write_image
+from wavefront.scene import Scene
+
+from .test_cli import SMALL, run
+from .test_furnace import SCENES
+
+IMAGE = np.full((4, 5, 3), 0.25, dtype=np.float32)
+
+
+def special_files(tmp_path):
+    fifo = tmp_path / "fifo.png"
+    os.mkfifo(fifo)
+    directory = tmp_path / "dir.png"
+    directory.mkdir()
+    sock_path = tmp_path / "sock.png"
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(sock_path))
+    return {"a FIFO": fifo, "a directory": directory, "a socket": sock_path}, sock
+
+
+def test_special_files_are_refused_before_and_at_the_write(tmp_path):
+    files, sock = special_files(tmp_path)
+    try:
+        for kind, path in files.items():
+            with pytest.raises(OutputError, match=kind):
+                check_output_path(str(path))
+            with pytest.raises(OutputError, match=kind):
+                write_image(str(path), IMAGE)
+            assert not stat.S_ISREG(os.lstat(path).st_mode)  # still what it was
+            link = tmp_path / f"link-to-{path.name}"
+            link.symlink_to(path)
+            with pytest.raises(OutputError, match=kind):
+                check_output_path(str(link))
+    finally:
+        sock.close()
+    assert not list(tmp_path.glob(".wavefront-*")), "temporary file left behind"
+
+
+def test_a_symlink_is_written_through_and_stays_a_link(tmp_path):
+    target = tmp_path / "real.npy"
+    np.save(target, np.zeros(1))
+    link = tmp_path / "link.npy"
+    link.symlink_to(target)
+    write_image(str(link), IMAGE)
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    np.testing.assert_array_equal(np.load(target), IMAGE)
+    dangling = tmp_path / "dangling.npy"
+    dangling.symlink_to(tmp_path / "not-yet.npy")
+    write_image(str(dangling), IMAGE)
+    np.testing.assert_array_equal(np.load(tmp_path / "not-yet.npy"), IMAGE)
+
+
+def test_a_symlink_loop_is_refused(tmp_path):
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    a.symlink_to(b)
+    b.symlink_to(a)
+    with pytest.raises(OutputError):
+        check_output_path(str(a))
+
+
+def test_read_only_files_are_never_overwritten_and_modes_are_kept(tmp_path):
+    locked = tmp_path / "locked.npy"
+    np.save(locked, np.zeros(1))
+    locked.chmod(0o444)
+    before = locked.read_bytes()
+    with pytest.raises(OutputError, match="read-only"):
+        check_output_path(str(locked))
+    with pytest.raises(OutputError, match="read-only"):
+        write_image(str(locked), IMAGE)  # even as root
+    assert locked.read_bytes() == before and stat.S_IMODE(locked.stat().st_mode) == 0o444
+    kept = tmp_path / "kept.npy"
+    np.save(kept, np.zeros(1))
+    kept.chmod(0o640)
+    write_image(str(kept), IMAGE)
+    assert stat.S_IMODE(kept.stat().st_mode) == 0o640
+    np.testing.assert_array_equal(np.load(kept), IMAGE)
+
+
+def test_same_file_sees_through_links(tmp_path):
+    a = tmp_path / "a.png"
+    a.write_bytes(b"x")
+    (tmp_path / "hard.png").hardlink_to(a)
+    (tmp_path / "soft.png").symlink_to(a)
+    assert same_file(str(a), str(tmp_path / "hard.png")) and same_file(str(a), str(tmp_path / "soft.png"))
+    assert same_file(str(tmp_path / "x" / ".." / "a.png"), str(a))
+    assert not same_file(str(a), str(tmp_path / "b.png"))
+
+
+def test_checkpoint_writes_follow_the_same_policy(tmp_path):
+    files, sock = special_files(tmp_path)
+    film = Film(2, 2)
+    try:
+        for kind, path in files.items():
+            ck = path.with_suffix(".npz")
+            os.rename(path, ck)
+            with pytest.raises(OutputError, match=kind):
+                save_checkpoint(str(ck), _tiny_scene(), film, 0)
+    finally:
+        sock.close()
+
+
+def _tiny_scene():
+    from wavefront import Lambertian, Sphere
+
+    return Scene(spheres=[Sphere((0, 0, -1), 0.5, "m")], materials={"m": Lambertian()}, width=2, height=2)
+
+
+# --- the command line ------------------------------------------------------------
+
+@pytest.mark.parametrize("flag", ["-o", "--checkpoint"])
+def test_cli_refuses_special_files_before_rendering(tmp_path, flag):
+    fifo = tmp_path / ("fifo.npz" if flag == "--checkpoint" else "fifo.png")
+    os.mkfifo(fifo)
+    folder = fifo.with_name("folder" + fifo.suffix)
+    folder.mkdir()
+    for path in (fifo, folder):
+        args = ["-o", tmp_path / "out.png", "--checkpoint", path] if flag == "--checkpoint" else ["-o", path]
+        r = run("render", SCENES / "three_spheres.yaml", *args, *SMALL)
+        assert r.returncode == 2, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and "regular files" in r.stderr and "Traceback" not in r.stderr
+        assert not (tmp_path / "out.png").exists() and stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_cli_refuses_one_file_named_twice_or_an_input_as_output(tmp_path):
+    (tmp_path / "a.npy").write_bytes(b"")
+    (tmp_path / "link.npz").symlink_to(tmp_path / "real.png")
+    cases = [
+        (["-o", tmp_path / "a.png", "--checkpoint", tmp_path / "a.png"], "must end in .npz"),
+        (["-o", tmp_path / "real.png", "--checkpoint", tmp_path / "link.npz"], "name the same file"),
+        (["-o", tmp_path / "a.npy", "--checkpoint", tmp_path / "ck.npz", "--resume", tmp_path / "a.npy"],
+         "would overwrite --resume"),
+        (["-o", tmp_path / "s{frame!s:.0}.png", "--frames", 3], "same file name"),
+        (["-o", tmp_path / "a_{frame}.png"], "--frames was not given"),
+    ]
+    for args, needle in cases:
+        r = run("render", SCENES / "three_spheres.yaml", *args, *SMALL)
+        assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npy", "link.npz"]
