@@ -19,6 +19,9 @@ scaling    time per path segment for 10, 100, 1,000 and 10,000 random spheres
            it finishes in reasonable time.
 memory     peak memory of 3840x2160 renders at 1 and 4 samples per pixel next
            to a 400x225 one: buffers come from the budget, not the image.
+budget     ``wavefront render`` under ``--memory 256M`` and ``1G`` (W2, 4K,
+           8K, 200,000 spheres), the whole process tree's peak resident
+           memory polled from outside next to the peak the summary reports.
 capacity   W1 at 20 spp on one core for several wavefront sizes.
 distributed  the final scene on Dask LocalClusters of 1 and 2 workers against
            the plain local render (1 and 2 processes), and Dask's overhead per
@@ -248,7 +251,8 @@ def section_capacity(runs):
 DASK_CHILD = textwrap.dedent("""
     import json, sys, time
     import wavefront
-    from wavefront.render import plan_tasks, plan_units, capacity_for, image_bytes, DEFAULT_MEMORY
+    from wavefront.render import plan_tasks
+    from wavefront.units import plan_units
     args = json.loads(sys.argv[1])
     scene = wavefront.load_scene(args["scene"]).with_overrides(**args.get("overrides", {}))
     n = args["workers"]
@@ -260,14 +264,13 @@ DASK_CHILD = textwrap.dedent("""
                                silence_logs=50)
         client = Client(cluster)
         executor = dask_executor(client)
-    wavefront.render_scene(scene, workers=n, executor=executor)  # warm-up
+    r = wavefront.render_scene(scene, workers=n, executor=executor)  # warm-up
     times = []
     for _ in range(args["runs"]):
         r = wavefront.render_scene(scene, workers=n, executor=executor)
         times.append(r.stats.elapsed)
-    capacity = capacity_for(DEFAULT_MEMORY - image_bytes(scene.width, scene.height), n)
     units = plan_units(scene.width, scene.height, scene.render.samples_per_pixel)
-    tasks = len(plan_tasks(units, capacity, n))
+    tasks = sum(1 for _ in plan_tasks(units, r.stats.capacity, n))
     times.sort()
     print(json.dumps({"elapsed": times[len(times) // 2], "tasks": tasks, "units": len(units)}))
 """)
@@ -293,8 +296,92 @@ def section_distributed(runs):
     text = table(["final_scene 400x225, 10 spp", "wall time", "speed-up vs 1 process", "tasks"], rows)
     text += (f"\n\nDask overhead (local:1 minus 1 process): {extra * 1e3:.0f} ms in all, "
              f"{data['overhead_per_task_s'] * 1e3:.1f} ms per task, {data['overhead_per_unit_s'] * 1e3:.1f} ms "
-             f"per unit ({units} units of a 64x64 tile x up to 16 samples per pixel)")
+             f"per unit ({units} units of a 64x64 tile x a pass of 1 to 16 samples per pixel)")
     return f"Medians of {runs} renders after one warm-up, in one process per row.\n\n{text}", data
+
+
+def tree_rss(pid: int) -> int:
+    """Resident bytes of ``pid`` and all its descendants, now (0 once gone)."""
+    total, todo = 0, [pid]
+    page = os.sysconf("SC_PAGE_SIZE")
+    while todo:
+        p = todo.pop()
+        try:
+            with open(f"/proc/{p}/statm") as f:
+                total += int(f.read().split()[1]) * page
+            for task in os.listdir(f"/proc/{p}/task"):
+                with open(f"/proc/{p}/task/{task}/children") as f:
+                    todo.extend(int(c) for c in f.read().split())
+        except (OSError, ValueError):
+            pass
+    return total
+
+
+def measure_command(argv: list[str]) -> dict:
+    """Run ``argv``; its wall time, exit status, last stderr line and the peak
+    of its whole process tree's resident memory, polled every 2 ms (sums of
+    resident sets: pages shared by a forked worker count once per process)."""
+    import time
+
+    start = time.perf_counter()
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    peak = 0
+    while proc.poll() is None:
+        peak = max(peak, tree_rss(proc.pid))
+        time.sleep(0.002)
+    err = proc.stderr.read().strip().splitlines()
+    return {"wall": time.perf_counter() - start, "status": proc.returncode, "peak": peak,
+            "line": err[-1] if err else ""}
+
+
+def write_random_scene(count: int, path: Path) -> None:
+    """``random_sphere_scene(count)`` as a YAML file, so loading it is measured too."""
+    scene = random_sphere_scene(count)
+    lines = ["camera: {look_from: [%r, %r, %r], look_at: [0, 0, 0], vfov: 45}" % scene.camera.look_from,
+             "materials:", "  ground: {type: lambertian, albedo: [0.5, 0.5, 0.5]}",
+             "  matte: {type: lambertian, albedo: [0.6, 0.3, 0.2]}",
+             "  metal: {type: metal, albedo: [0.8, 0.8, 0.8], fuzz: 0.2}",
+             "  glass: {type: dielectric, refraction_index: 1.5}", "spheres:"]
+    lines += ["  - {center: [%r, %r, %r], radius: %r, material: %s}" % (*s.center, s.radius, s.material)
+              for s in scene.spheres]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def section_budget(runs):
+    """``--memory`` against the measured peak of the whole process tree."""
+    import tempfile
+
+    tmp = Path(tempfile.mkdtemp(prefix="wavefront-bench-"))
+    many = tmp / "random200k.yaml"
+    write_random_scene(200_000, many)
+    cases = [("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", [], ("256M", "1G")),
+             ("three_spheres 3840x2160, 1 spp", "scenes/three_spheres.yaml",
+              ["--width", "3840", "--height", "2160", "--spp", "1"], ("256M", "1G")),
+             ("three_spheres 7680x4320, 1 spp", "scenes/three_spheres.yaml",
+              ["--width", "7680", "--height", "4320", "--spp", "1"], ("1G", "2G")),
+             ("200,000 spheres 400x225, 1 spp", str(many), ["--spp", "1"], ("256M", "1G"))]
+    wavefront = str(Path(PYTHON).parent / "wavefront")
+    rows, data = [], {}
+    for label, scene, flags, budgets in cases:
+        for budget in budgets:
+            r = measure_command([wavefront, "render", scene, "-o", str(tmp / "out.png"), "--workers", "2",
+                                 "--memory", budget, *flags])
+            data[f"{label} @ {budget}"] = r
+            if r["status"] == 0:
+                reported = r["line"].split("peak memory ")[1].split(",")[0]
+                workers = r["line"].rsplit(", ", 1)[1]
+                outcome = f"rendered, {workers}"
+            else:
+                reported = "-"
+                outcome = "refused: " + r["line"].split("error: ")[-1][:70]
+            limit = int(budget[:-1]) << {"M": 20, "G": 30}[budget[-1]]
+            within = "yes" if r["peak"] <= limit else "**no**"
+            rows.append([label, budget, outcome, reported, fmt_mib(r["peak"]), within, f"{r['wall']:.1f} s"])
+    text = table(["render (PNG out, --workers 2)", "--memory", "outcome", "reported peak", "measured tree peak",
+                  "within budget", "wall time"], rows)
+    return ("Each row is one `wavefront render` process, its whole process tree's resident memory polled "
+            "every 2 ms (a sum of resident sets, so pages a forked worker shares with the parent count "
+            f"twice, as the budget counts them); loading, rendering and writing the PNG included.\n\n{text}"), data
 
 
 def plot_scaling(data, path):
@@ -322,11 +409,12 @@ def plot_scaling(data, path):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--section", choices=("all", "workloads", "scaling", "memory", "capacity", "distributed"),
+    parser.add_argument("--section", choices=("all", "workloads", "scaling", "memory", "budget", "capacity",
+                                                 "distributed"),
                         default="all")
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    sections = (("workloads", "scaling", "memory", "capacity", "distributed") if args.section == "all"
+    sections = (("workloads", "scaling", "memory", "budget", "capacity", "distributed") if args.section == "all"
                 else (args.section,))
     everything = {}
     for name in sections:
