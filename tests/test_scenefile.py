@@ -131,3 +131,161 @@ def test_duplicate_key_names_its_path():
 def test_missing_file(tmp_path):
     with pytest.raises(SceneError, match="cannot read"):
         load_scene(tmp_path / "absent.yaml")
+
+
+# --- issue #10, item 8: numbers are read by YAML 1.2's core schema ---------------------------------------
+
+def sphere_file(radius_text: str) -> bytes:
+    return (b"materials: {m: {type: lambertian}}\n"
+            b"spheres:\n  - {center: [0, 0, -1], radius: " + radius_text.encode() + b", material: m}\n")
+
+
+@pytest.mark.parametrize("text,value", [
+    ("1e6", 1e6), ("1.0e6", 1e6), ("1e-3", 1e-3), (".5", 0.5), ("+1", 1.0), ("-.5e+3", -500.0),
+    ("1E+2", 100.0), ("2.", 2.0), ("0x1F", 31.0), ("0o17", 15.0), ("0", 0.0), ("7", 7.0), ("1.5", 1.5),
+])
+def test_yaml_1_2_numbers_are_numbers(text, value):
+    """1e6 was text under YAML 1.1's float pattern ("expected a number")."""
+    doc = read_yaml(("[" + text + "]").encode(), "n.yaml")
+    assert doc == [value] and type(doc[0]) in (int, float)
+    if value > 0:
+        assert scene_from_dict(read_yaml(sphere_file(text), "n.yaml")).spheres[0].radius == value
+
+
+@pytest.mark.parametrize("text,problem", [
+    ("1:30", "base-60 number 90"),
+    ("010", "octal 8, YAML 1.2 as 10"),
+    ("-010", "octal -8"),
+    ("09", "YAML 1.2 reads it as 9"),
+    ("1_000", "YAML 1.1 reads it as 1000"),
+    ("0b11", "binary 3"),
+])
+def test_yaml_1_1_numbers_that_1_2_reads_differently_are_refused(text, problem):
+    """1:30 was silently 90 and 010 silently 8."""
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(read_yaml(sphere_file(text), "n.yaml"), source="n.yaml")
+    assert str(e.value).startswith("n.yaml: spheres[0].radius: expected a number, got "), str(e.value)
+    assert problem in str(e.value), str(e.value)
+
+
+def test_yaml_1_1_lookalikes_are_text_where_text_is_expected():
+    assert read_yaml(b"name: 1:30\nspheres: []\n", "n.yaml")["name"] == "1:30"
+    assert scene_from_dict(read_yaml(b"name: 010\nspheres: []\n", "n.yaml")).name == "010"
+
+
+@pytest.mark.parametrize("text,expected", [
+    ("yes", "string 'yes'"), ("on", "string 'on'"), ("true", "boolean True"), ("~", "nothing"),
+    (".nan", "finite"), (".inf", "finite"), ("-.Inf", "finite"),
+])
+def test_yaml_1_2_booleans_nulls_and_specials(text, expected):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(read_yaml(sphere_file(text), "n.yaml"), source="n.yaml")
+    assert str(e.value).startswith("n.yaml: spheres[0].radius: ") and expected in str(e.value), str(e.value)
+
+
+def test_explicit_core_tags_are_read_and_checked():
+    assert read_yaml(b"[!!float 1, !!str 1, !!int 0x10, ! 5]", "t.yaml") == [1.0, "1", 16, "5"]
+    with pytest.raises(SceneError, match=r"t.yaml: \[0\]: 'abc' is not a valid int"):
+        read_yaml(b"[!!int abc]", "t.yaml")
+
+
+# --- item 9: libyaml, under the same checks; aliases counted apart from size ------------------------------
+
+def test_libyaml_is_used_when_present():
+    import yaml
+
+    from wavefront import scenefile
+    if yaml.__with_libyaml__:
+        assert issubclass(scenefile._Parser, yaml.cyaml.CParser)
+
+
+def test_python_parser_reads_the_same_values(monkeypatch):
+    from wavefront import scenefile
+    text = (SCENES / "three_spheres.yaml").read_bytes() + b"extra: [1e6, 010, 1:30, .5, &a [1, 2], *a, yes]\n"
+    fast = read_yaml(text, "s.yaml")
+    monkeypatch.setattr(scenefile, "_Parser", scenefile._PythonParser)
+    assert read_yaml(text, "s.yaml") == fast
+    with pytest.raises(SceneError, match="duplicate key"):
+        read_yaml(b"a: 1\na: 2\n", "d.yaml")
+
+
+def test_a_large_document_without_aliases_is_not_an_alias_bomb():
+    """200,000 spheres (~2.4 M values) were refused as "alias bomb?" though the file had no aliases."""
+    values = read_yaml(b"[" + b"0.5, " * 2_500_000 + b"]", "big.yaml")
+    assert len(values) == 2_500_000
+
+
+def test_aliases_are_counted_by_what_they_expand_to():
+    ok = read_yaml(b"s: &s {center: [0, 0, -1], radius: 1, material: m}\nt: [" + b"*s, " * 1000 + b"]\n", "a.yaml")
+    assert len(ok["t"]) == 1000 and ok["t"][0] is ok["s"]
+    with pytest.raises(SceneError, match=r"a.yaml: t\[\d+\]: aliases expand the document by more than"):
+        read_yaml(b"s: &s [" + b"0, " * 1000 + b"]\nt: [" + b"*s, " * 2100 + b"]\n", "a.yaml")
+    with pytest.raises(SceneError, match="refers to a value that contains it"):
+        read_yaml(b"a: &a [*a]\n", "r.yaml")
+    with pytest.raises(SceneError, match="no anchor"):
+        read_yaml(b"a: *b\n", "r.yaml")
+
+
+def test_nesting_error_names_its_path():
+    with pytest.raises(SceneError, match=r"n.yaml: a\[0\]\[0\]\[0\].*: nested more than 64 levels"):
+        read_yaml(b"a: " + b"[" * 100 + b"]" * 100, "n.yaml")
+
+
+def test_files_past_the_old_16_mib_limit_load(tmp_path):
+    scene = tmp_path / "big.yaml"
+    scene.write_bytes(b"#" * (20 << 20) + b"\nspheres: []\n")
+    assert load_scene(scene).spheres == []
+
+
+def test_bulk_spheres_are_checked_like_single_ones():
+    """The bulk path (Sphere.many) names the first bad sphere by its index, as the one-by-one path does."""
+    doc = {"materials": {"m": {"type": "lambertian"}},
+           "spheres": [{"center": [i, 0, -1], "radius": 1, "material": "m"} for i in range(1000)]}
+    assert len(scene_from_dict(doc).spheres) == 1000
+    for key, value, where, problem in [("radius", -1, "spheres[700].radius", "> 0"),
+                                       ("radius", 5e-324, "spheres[700].radius", "too small"),
+                                       ("radius", True, "spheres[700].radius", "expected a number"),
+                                       ("center", [0, "x", 0], "spheres[700].center[1]", "expected a number"),
+                                       ("center", [0, 0], "spheres[700].center", "3 numbers"),
+                                       ("material", "nowhere", "spheres[700].material", "unknown material")]:
+        bad = copy.deepcopy(doc)
+        bad["spheres"][700][key] = value
+        bad["spheres"][900]["radius"] = -2  # a later problem is not the one reported
+        with pytest.raises(SceneError) as e:
+            scene_from_dict(bad, source="b.yaml")
+        assert str(e.value).startswith(f"b.yaml: {where}: ") and problem in str(e.value), str(e.value)
+
+
+# --- item 11: messages ---------------------------------------------------------------------------------
+
+def test_a_too_large_file_is_reported_in_mib(tmp_path):
+    scene = tmp_path / "huge.yaml"
+    with open(scene, "wb") as f:
+        f.truncate(200 << 20)  # sparse: takes no disk
+    with pytest.raises(SceneError) as e:
+        load_scene(scene)
+    assert "200.0 MiB" in str(e.value) and "limit is 128 MiB" in str(e.value) and "bytes" not in str(e.value)
+
+
+def test_material_names_in_two_unicode_forms_match_in_files():
+    text = "materials: {\"e\u0301\": {type: lambertian}}\nspheres: [{center: [0, 0, -1], radius: 1, material: \u00e9}]\n"
+    assert load_scene_text(text).spheres[0].material == "\u00e9"
+
+
+def load_scene_text(text):
+    return scene_from_dict(read_yaml(text.encode(), "u.yaml"), source="u.yaml")
+
+
+def test_a_radius_float64_cannot_invert_is_a_clean_error():
+    with pytest.raises(SceneError, match=r"r.yaml: spheres\[0\].radius: 5e-324 is too small"):
+        scene_from_dict(read_yaml(sphere_file("5e-324"), "r.yaml"), source="r.yaml")
+
+
+def test_far_camera_close_target_is_judged_by_precision_not_called_equal():
+    far = broken("camera", {"look_from": [1e12, 0, 0], "look_at": [1e12, 0, -1]})
+    assert scene_from_dict(far).camera.look_at == (1e12, 0.0, -1.0)
+    farther = broken("camera", {"look_from": [1e15, 0, 0], "look_at": [1e15, 0, -1]})
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(farther, source="c.yaml")
+    assert str(e.value).startswith("c.yaml: camera.look_at: the view cannot be resolved in float64")
+    assert "equal" not in str(e.value) and "0.125 apart" in str(e.value)

@@ -7,6 +7,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from .validation import color
+
 RGB = tuple[float, float, float]
 
 
@@ -25,6 +27,10 @@ class Sky:
     bottom: RGB = (1.0, 1.0, 1.0)
     top: RGB = (0.5, 0.7, 1.0)
     type: ClassVar[str] = "sky"
+
+    def __post_init__(self):
+        object.__setattr__(self, "bottom", color(self, self.bottom, "bottom"))
+        object.__setattr__(self, "top", color(self, self.top, "top"))
 
     def radiance(self, direction: np.ndarray) -> np.ndarray:
         """Colour seen along unit ``direction`` (3, N); returns (3, N)."""
@@ -47,6 +53,9 @@ class Solid:
 
     color: RGB = (0.0, 0.0, 0.0)
     type: ClassVar[str] = "solid"
+
+    def __post_init__(self):
+        object.__setattr__(self, "color", color(self, self.color, "color"))
 
     def radiance(self, direction: np.ndarray) -> np.ndarray:
         return np.broadcast_to(np.asarray(self.color, dtype=direction.dtype)[:, None], direction.shape)

@@ -11,8 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import MAX_COORDINATE, position
 from .sampling import random_in_unit_disk
+from .validation import fail, number, vec3
 from .vecmath import normalize
+
+# A pixel at the focus distance must span at least this many representable
+# float64 positions at the camera's coordinates, or neighbouring pixels'
+# rays (and the jitter within a pixel) collapse onto the same directions.
+STEPS_PER_PIXEL = 4
 
 Vec3 = tuple[float, float, float]
 
@@ -43,6 +50,52 @@ class Camera:
     defocus_angle: float = 0.0
     focus_dist: float | None = None
 
+    def __post_init__(self):
+        set_field = object.__setattr__
+        set_field(self, "look_from", position(self, self.look_from, "look_from"))
+        set_field(self, "look_at", position(self, self.look_at, "look_at"))
+        set_field(self, "vup", vec3(self, self.vup, "vup"))
+        set_field(self, "vfov", number(self, self.vfov, "vfov", low=0.0, low_open=True, high=180.0, high_open=True))
+        set_field(self, "defocus_angle", number(self, self.defocus_angle, "defocus_angle",
+                                                low=0.0, high=180.0, high_open=True))
+        if self.focus_dist is not None:
+            set_field(self, "focus_dist", number(self, self.focus_dist, "focus_dist",
+                                                 low=0.0, low_open=True, high=MAX_COORDINATE))
+        forward = [b - a for a, b in zip(self.look_from, self.look_at)]
+        if not any(forward):
+            fail(self, "look_at", f"must differ from look_from (both are {list(self.look_from)}): the camera has no view direction")
+        # compare directions at unit scale so huge or tiny vectors neither overflow nor underflow
+        f = _unit(forward)
+        up = _unit(self.vup) if any(self.vup) else (0.0, 0.0, 0.0)
+        cross = (up[1] * f[2] - up[2] * f[1], up[2] * f[0] - up[0] * f[2], up[0] * f[1] - up[1] * f[0])
+        if math.hypot(*cross) <= 1e-9:
+            fail(self, "vup", "must not be zero or parallel to the view direction (look_at - look_from)")
+
+    def check_resolution(self, width: int, height: int) -> None:
+        """Refuse a view that float64 cannot resolve at this image size.
+
+        The test is the one that matters, not whether look_from and look_at
+        are "close": a camera at 1e12 looking at a point one unit away renders
+        fine (positions there are 1.2e-4 apart, a pixel of a 225-row image is
+        0.009 wide), while the same camera at 1e15 cannot (positions 0.125
+        apart).
+        """
+        forward = [b - a for a, b in zip(self.look_from, self.look_at)]
+        focus = self.focus_dist if self.focus_dist is not None else math.hypot(*forward)
+        pixel = 2.0 * math.tan(math.radians(self.vfov) / 2.0) * focus / height
+        magnitude = max(abs(x) for x in (*self.look_from, *self.look_at))
+        # the focus plane lies up to focus + half the viewport from look_from
+        magnitude = max(magnitude, max(map(abs, self.look_from)) + focus + pixel * max(width, height))
+        spacing = math.ulp(magnitude)
+        if not pixel >= STEPS_PER_PIXEL * spacing:
+            hint = "increase focus_dist" if self.focus_dist is not None else "move look_at farther from look_from"
+            # named look_at, as every problem of the view's geometry is (the
+            # file's reader looks there first); the message says which values
+            fail(self, "look_at", f"the view cannot be resolved in float64: at coordinates of magnitude {magnitude:.3g} "
+                                  f"positions are {spacing:.3g} apart, but a pixel at the focus distance {focus:.3g} "
+                                  f"is {pixel:.3g} wide (at least {STEPS_PER_PIXEL} positions per pixel are needed); "
+                                  f"{hint}, use a smaller image, or bring the camera nearer the origin")
+
     def frame(self, width: int, height: int) -> CameraFrame:
         """Derived per-image state: pixel grid and lens basis."""
         center = np.asarray(self.look_from, dtype=np.float64)
@@ -70,6 +123,13 @@ class Camera:
             defocus_v=v * defocus_radius,
             has_defocus=self.defocus_angle > 0,
         )
+
+
+def _unit(v) -> tuple[float, float, float]:
+    scale = max(map(abs, v))
+    v = [x / scale for x in v]
+    length = math.hypot(*v)
+    return tuple(x / length for x in v)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from .sampling import random_unit_vector
+from .validation import color, number, warn
 from .vecmath import dot, gather, normalize, reflect, refract, scatter, schlick
 
 # A lambertian scatter direction n + random_unit_vector() vanishes when the
@@ -47,6 +48,9 @@ class Lambertian:
     albedo: RGB = (0.5, 0.5, 0.5)
     kind: ClassVar[str] = "lambertian"
 
+    def __post_init__(self):
+        object.__setattr__(self, "albedo", color(self, self.albedo, "albedo"))
+
 
 @dataclass(frozen=True)
 class Metal:
@@ -66,10 +70,14 @@ class Metal:
     kind: ClassVar[str] = "metal"
 
     def __post_init__(self):
+        object.__setattr__(self, "albedo", color(self, self.albedo, "albedo"))
+        fuzz = number(self, self.fuzz, "fuzz", low=0.0)
         # The lesson clamps fuzz to at most 1: beyond that the jitter ball
         # contains the origin and the lobe is no longer centred on the mirror
-        # direction.  The scene loader warns when it clamps.
-        object.__setattr__(self, "fuzz", min(float(self.fuzz), 1.0))
+        # direction.
+        if fuzz > 1.0:
+            warn(self, "fuzz", f"{self.fuzz!r} clamped to 1")
+        object.__setattr__(self, "fuzz", min(fuzz, 1.0))
 
 
 @dataclass(frozen=True)
@@ -88,6 +96,10 @@ class Dielectric:
     refraction_index: float = 1.5
     kind: ClassVar[str] = "dielectric"
 
+    def __post_init__(self):
+        object.__setattr__(self, "refraction_index",
+                           number(self, self.refraction_index, "refraction_index", low=0.0, low_open=True))
+
 
 @dataclass(frozen=True)
 class Emissive:
@@ -102,6 +114,9 @@ class Emissive:
 
     color: RGB = (1.0, 1.0, 1.0)
     kind: ClassVar[str] = "emissive"
+
+    def __post_init__(self):
+        object.__setattr__(self, "color", color(self, self.color, "color"))
 
 
 @dataclass(frozen=True)
@@ -127,6 +142,12 @@ class Phong:
     shininess: float = 32.0
     reflectivity: RGB = (0.0, 0.0, 0.0)
     kind: ClassVar[str] = "phong"
+
+    def __post_init__(self):
+        for key in ("ambient", "diffuse", "specular"):
+            object.__setattr__(self, key, color(self, getattr(self, key), key))
+        object.__setattr__(self, "shininess", number(self, self.shininess, "shininess", low=0.0))
+        object.__setattr__(self, "reflectivity", color(self, self.reflectivity, "reflectivity", high=1.0))
 
 
 Material = Lambertian | Metal | Dielectric | Emissive | Phong

@@ -17,20 +17,29 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import unicodedata
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .background import Background, Sky
+from .background import Background, Sky, Solid
 from .camera import Camera
-from .geometry import Sphere, SphereSet, precision_for
-from .materials import Material, MaterialTable
+from .geometry import Sphere, SphereSet, position, precision_for
+from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
+from .validation import SceneError, color, describe, fail, instance, integer, source_of, string
 
 RGB = tuple[float, float, float]
 
 INTEGRATORS = ("path", "whitted")
 DEFAULT_MAX_DEPTH = {"path": 50, "whitted": 3}
 PRECISIONS = ("auto", "float32", "float64")
+
+# Limits every entry point shares (objects, scene files, command-line flags).
+MAX_PIXELS = 1 << 28  # 268 M pixels: the float32 film alone would need 3 GiB
+MAX_SAMPLES_PER_PIXEL = 1 << 24  # 16 M: beyond this float32 sums stop resolving one more sample
+MAX_DEPTH = 10_000  # far past any converged path; bounds the bounce loop
+MAX_SEED = 2**63 - 1  # what SeedSequence entropy and the checkpoint's int64 hold
 
 
 @dataclass(frozen=True)
@@ -47,6 +56,10 @@ class PointLight:
 
     position: tuple[float, float, float]
     color: RGB = (1.0, 1.0, 1.0)
+
+    def __post_init__(self):
+        object.__setattr__(self, "position", position(self, self.position, "position"))
+        object.__setattr__(self, "color", color(self, self.color, "color"))
 
 
 @dataclass(frozen=True)
@@ -72,6 +85,19 @@ class RenderSettings:
     seed: int = 0
     integrator: str = "path"
     precision: str = "auto"
+
+    def __post_init__(self):
+        set_field = object.__setattr__
+        set_field(self, "samples_per_pixel", integer(self, self.samples_per_pixel, "samples_per_pixel",
+                                                     low=1, high=MAX_SAMPLES_PER_PIXEL))
+        set_field(self, "integrator", string(self, self.integrator, "integrator", INTEGRATORS))
+        if self.max_depth is not None:
+            # whitted's depth counts reflections after the first hit (0: none);
+            # a path needs at least one segment to see anything
+            low = 0 if self.integrator == "whitted" else 1
+            set_field(self, "max_depth", integer(self, self.max_depth, "max_depth", low=low, high=MAX_DEPTH))
+        set_field(self, "seed", integer(self, self.seed, "seed", low=0, high=MAX_SEED))
+        set_field(self, "precision", string(self, self.precision, "precision", PRECISIONS))
 
     @property
     def depth(self) -> int:
@@ -109,25 +135,96 @@ class Scene:
     ambient: RGB = (0.0, 0.0, 0.0)
     name: str = "scene"
 
+    def __post_init__(self):
+        """Check every field and how they fit together; normalise sequences to
+        lists and tuples, and material names to Unicode NFC."""
+        set_field = object.__setattr__
+        set_field(self, "name", string(self, self.name, "name"))
+        for key in ("width", "height"):
+            set_field(self, key, integer(self, getattr(self, key), key, low=1, high=MAX_PIXELS))
+        if self.width * self.height > MAX_PIXELS:
+            fail(self, "", f"an image of {self.width}x{self.height} is more than {MAX_PIXELS} pixels")
+        instance(self, self.render, "render", RenderSettings, "RenderSettings")
+        instance(self, self.background, "background", (Sky, Solid), "Sky or Solid")
+        set_field(self, "ambient", color(self, self.ambient, "ambient"))
+        instance(self, self.camera, "camera", Camera, "a Camera")
+        try:
+            self.camera.check_resolution(self.width, self.height)
+        except SceneError as e:
+            raise e.within(e.source.replace("Camera", "Scene"), "camera") from None
+
+        if not isinstance(self.materials, Mapping):
+            fail(self, "materials", f"expected a mapping of names to materials, got {describe(self.materials)}")
+        materials = {}
+        for key, material in self.materials.items():
+            if not isinstance(key, str):
+                fail(self, "materials", f"material names must be strings, got {describe(key)}")
+            normal = unicodedata.normalize("NFC", key)
+            if normal in materials:
+                fail(self, f"materials.{key}", f"is the same name as {next(k for k in self.materials if k != key and unicodedata.normalize('NFC', k) == normal)!r} in another Unicode form")
+            instance(self, material, f"materials.{key}", MATERIAL_TYPES, "a material (" + ", ".join(t.__name__ for t in MATERIAL_TYPES) + ")")
+            materials[normal] = material
+        set_field(self, "materials", materials)
+
+        spheres = self.spheres
+        if not isinstance(spheres, Sequence) or isinstance(spheres, str):
+            fail(self, "spheres", f"expected a list of Sphere, got {describe(spheres)}")
+        if type(spheres) is not list:
+            spheres = list(spheres)
+        if set(map(type, spheres)) - {Sphere}:
+            i = next(i for i, s in enumerate(spheres) if not isinstance(s, Sphere))
+            instance(self, spheres[i], f"spheres[{i}]", Sphere, "a Sphere")
+        set_field(self, "spheres", spheres)
+        self._check_references(materials, spheres)
+
+        lights = self.lights
+        if not isinstance(lights, Sequence) or isinstance(lights, str):
+            fail(self, "lights", f"expected a list of PointLight, got {describe(lights)}")
+        for i, light in enumerate(lights):
+            instance(self, light, f"lights[{i}]", PointLight, "a PointLight")
+        set_field(self, "lights", tuple(lights))
+
+    def _check_references(self, materials: dict, spheres: list[Sphere]) -> None:
+        """Every sphere names a defined material (or indexes one)."""
+        used = set(map(_material_of, spheres))
+        names = {m for m in used if isinstance(m, str)}
+        indices = used - names
+        if names <= materials.keys() and all(i < len(materials) for i in indices):
+            return
+        for i, sphere in enumerate(spheres):
+            m = sphere.material
+            if isinstance(m, str) and m not in materials:
+                fail(self, f"spheres[{i}].material", unknown_material(m, materials))
+            if isinstance(m, int) and m >= len(materials):
+                fail(self, f"spheres[{i}].material", f"material index {m} is out of range "
+                                                     f"(the scene has {len(materials)} materials)")
+
     def replace(self, **changes) -> Scene:
+        """A copy with ``changes``, validated as a new scene is."""
         return dataclasses.replace(self, **changes)
 
     def with_overrides(self, *, width=None, height=None, samples_per_pixel=None,
                        max_depth=None, seed=None) -> Scene:
-        """Command-line style overrides; ``width`` alone keeps the aspect ratio."""
-        w, h = self.width, self.height
-        if width is not None and height is None:
-            h = max(1, round(width * self.height / self.width))
-        if height is not None and width is None:
-            w = max(1, round(height * self.width / self.height))
-        w = width if width is not None else w
-        h = height if height is not None else h
-        settings = {}
-        for key, value in (("samples_per_pixel", samples_per_pixel),
-                           ("max_depth", max_depth), ("seed", seed)):
-            if value is not None:
-                settings[key] = value
-        return self.replace(width=w, height=h, render=dataclasses.replace(self.render, **settings))
+        """Command-line style overrides; ``width`` alone keeps the aspect ratio.
+
+        The result is validated as any scene is: a bad value raises
+        :class:`SceneError` naming ``width``, ``height`` or ``render.<field>``.
+        """
+        w = integer(self, width, "width", low=1) if width is not None else None
+        h = integer(self, height, "height", low=1) if height is not None else None
+        if w is not None and h is None:
+            h = max(1, round(w * self.height / self.width))
+        if h is not None and w is None:
+            w = max(1, round(h * self.width / self.height))
+        settings = {key: value for key, value in (("samples_per_pixel", samples_per_pixel),
+                                                  ("max_depth", max_depth), ("seed", seed))
+                    if value is not None}
+        try:
+            render = dataclasses.replace(self.render, **settings)
+        except SceneError as e:
+            raise e.within(source_of(self), "render") from None
+        return self.replace(width=w if w is not None else self.width, height=h if h is not None else self.height,
+                            render=render)
 
     def compile(self) -> CompiledScene:
         return CompiledScene.build(self)
@@ -164,6 +261,15 @@ class CompiledScene:
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         return cls(scene, spheres, table, light_position, light_color, dtype)
+
+
+def unknown_material(name: str, materials) -> str:
+    """The problem of a sphere whose material ``name`` is not among ``materials``."""
+    return f"unknown material {name!r} (defined: {', '.join(sorted(materials)) or 'none'})"
+
+
+MATERIAL_TYPES = (Lambertian, Metal, Dielectric, Emissive, Phong)
+_material_of = Sphere.material.__get__  # slot getter: map() over a million spheres at C speed
 
 
 def scene_extent(scene: Scene) -> float:

@@ -1,120 +1,391 @@
 """Reading scene files: YAML in, a validated :class:`~wavefront.scene.Scene` out.
 
 Every problem is reported as one :class:`SceneError` naming the file, the YAML
-path of the offending value (``spheres[3].material``) and what is wrong.  The
-YAML is read with a safe loader, duplicate keys are errors rather than silently
-overwritten, and the document's size, nesting and alias expansion are bounded
-so a hostile file cannot exhaust memory.
+path of the offending value (``spheres[3].material``) and what is wrong.
+
+Reading is in two steps.  First the YAML becomes plain Python values
+(:func:`read_yaml`): libyaml's C parser (PyYAML's pure-Python one where PyYAML
+was built without libyaml) streams events, and plain values are built from
+them directly, without PyYAML's node tree (which costs ~5 KB a sphere).  On
+the way, scalars are typed by YAML 1.2's core schema, duplicate keys are
+errors, nesting is bounded, and aliases are counted by the values they expand
+to, so a "billion laughs" file is refused while a large file without aliases
+is only bounded by its size.  Then the values become scene objects
+(:func:`scene_from_dict`): the loader checks the document's shape (mappings,
+known keys) and hands the values to the objects' constructors, which hold the
+rules (``wavefront.validation``); their errors come back here under the file's
+name and the value's YAML path.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import operator
 import os
+import re
+import unicodedata
 import warnings
+from itertools import repeat
 from typing import Any
 
 import yaml
+from yaml.events import (AliasEvent, DocumentEndEvent, MappingEndEvent, MappingStartEvent, ScalarEvent,
+                         SequenceEndEvent, SequenceStartEvent, StreamEndEvent)
+from yaml.nodes import ScalarNode
 
 from .background import Sky, Solid
 from .camera import Camera
 from .geometry import Sphere
-from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
-from .scene import INTEGRATORS, PRECISIONS, PointLight, RenderSettings, Scene
+from .scene import (  # noqa: F401  (the limits are importable from here too, as before)
+    MATERIAL_TYPES, MAX_DEPTH, MAX_PIXELS, MAX_SAMPLES_PER_PIXEL, MAX_SEED, PointLight, RenderSettings, Scene,
+    unknown_material,
+)
+from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
 
-MAX_FILE_BYTES = 16 * 1024 * 1024  # a scene of a million spheres is ~60 MB; refuse more than a sane hand/script file
-MAX_NODES = 2_000_000  # YAML nodes after alias expansion ("billion laughs" guard)
+__all__ = ["SceneError", "SceneWarning", "load_scene", "read_yaml", "scene_from_dict"]
+
+MiB = 1 << 20
+# A million spheres written as make_final_scene.py writes them is ~68 MB and
+# loads in ~10 s and ~0.7 GiB; the limit leaves room for about twice that.
+MAX_FILE_BYTES = 128 * MiB
+MAX_ALIAS_VALUES = 2_000_000  # values that aliases may add by expansion ("billion laughs" guard)
 MAX_NESTING = 64  # no valid scene nests deeper than ~4
-MAX_PIXELS = 1 << 28  # 268 M pixels: the float32 film alone would need 3 GiB
-MAX_SAMPLES_PER_PIXEL = 1 << 24
-MAX_DEPTH = 10_000
-MAX_SEED = 2**63 - 1
-
-
-class SceneError(ValueError):
-    """A scene file or value is malformed.
-
-    ``str(error)`` is the whole user-facing message:
-    ``file: yaml.path: problem``.
-    """
-
-    def __init__(self, source: str, path: str, problem: str):
-        self.source, self.path, self.problem = source, path, problem
-        where = f"{source}: {path}" if path else source
-        super().__init__(f"{where}: {problem}")
-
-
-class SceneWarning(UserWarning):
-    """Something in a scene was accepted but changed or ignored."""
+MAX_NODES = MAX_ALIAS_VALUES  # the old name of the alias limit
 
 
 # ---------------------------------------------------------------------------
-# YAML reading
+# YAML 1.2 core schema
 
-class _Loader(yaml.SafeLoader):
-    """Safe loader; mappings are checked for duplicate keys in ``_check_tree``."""
+_TAG = "tag:yaml.org,2002:"
+_YAML11 = "tag:wavefront,2026:yaml-1.1-number"
 
 
-def _check_tree(node: yaml.Node, source: str) -> None:
-    """Reject duplicate keys, deep nesting and alias bombs before constructing.
+class _Resolver(yaml.resolver.BaseResolver):
+    """Implicit types of YAML 1.2's core schema, not PyYAML's YAML 1.1 ones.
 
-    Expanded size is counted with memoisation on shared (aliased) nodes, so a
-    bomb is measured in linear time without ever being expanded.
+    YAML 1.1 reads ``1e6`` as text, ``yes`` as true, ``1:30`` as 90 and
+    ``010`` as 8; YAML 1.2 reads them as 1000000.0, text, text and 10.  The
+    1.2 rules are followed, and the plain scalars the two versions read as
+    different numbers are typed ``_YAML11`` so that the scene refuses them,
+    with the reason, wherever it expects a number.
     """
-    sizes: dict[int, int] = {}
-
-    def walk(n: yaml.Node, path: str, depth: int) -> int:
-        if depth > MAX_NESTING:
-            raise SceneError(source, path, f"nested more than {MAX_NESTING} levels deep")
-        key = id(n)
-        if key in sizes:
-            return sizes[key]
-        sizes[key] = 1  # guards against recursive aliases
-        total = 1
-        if isinstance(n, yaml.MappingNode):
-            seen = set()
-            for k, v in n.value:
-                name = k.value if isinstance(k, yaml.ScalarNode) else "?"
-                if isinstance(k, yaml.ScalarNode):
-                    if k.value in seen:
-                        raise SceneError(source, _join(path, name), "duplicate key")
-                    seen.add(k.value)
-                total += walk(k, path, depth + 1) + walk(v, _join(path, name), depth + 1)
-                if total > MAX_NODES:
-                    break
-        elif isinstance(n, yaml.SequenceNode):
-            for i, v in enumerate(n.value):
-                total += walk(v, f"{path}[{i}]", depth + 1)
-                if total > MAX_NODES:
-                    break
-        if total > MAX_NODES:
-            raise SceneError(source, path, f"document expands to more than {MAX_NODES} values (alias bomb?)")
-        sizes[key] = total
-        return total
-
-    walk(node, "", 0)
 
 
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else str(key)
+    def resolve(self, kind, value, implicit):
+        """BaseResolver.resolve for plain scalars without its per-call list
+        concatenation (it runs for every number in the file)."""
+        if kind is ScalarNode and implicit[0]:
+            for tag, regexp in self.yaml_implicit_resolvers.get(value[:1], ()):
+                if regexp.match(value):
+                    return tag
+            return self.DEFAULT_SCALAR_TAG
+        return super().resolve(kind, value, implicit)
 
 
-def read_yaml(data: bytes, source: str) -> Any:
-    """Parse YAML bytes safely, raising :class:`SceneError` on any problem."""
+_DIGITS = "-+0123456789"
+for _tag, _pattern, _first in [
+    # YAML 1.2 core schema, section 10.3.2; integers with a leading zero are
+    # left to the YAML 1.1 patterns below
+    (_TAG + "float", r"[-+]?(?:(?:\.[0-9]+|[0-9]+\.[0-9]*)(?:[eE][-+]?[0-9]+)?|[0-9]+[eE][-+]?[0-9]+)", _DIGITS + "."),
+    (_TAG + "int", r"[-+]?(?:0|[1-9][0-9]*)|0o[0-7]+|0x[0-9a-fA-F]+", _DIGITS),
+    (_TAG + "float", r"[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN)", "-+."),
+    (_TAG + "null", r"~|null|Null|NULL|", ["~", "n", "N", ""]),
+    (_TAG + "bool", r"true|True|TRUE|false|False|FALSE", "tTfF"),
+    # YAML 1.1 numbers that YAML 1.2 reads differently (or not as numbers)
+    (_YAML11, r"[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+(?:\.[0-9_]*)?", _DIGITS),  # sexagesimal 1:30
+    (_YAML11, r"[-+]?0[0-9_]+", _DIGITS),  # leading zero: octal in 1.1
+    (_YAML11, r"[-+]?0b[01_]+", _DIGITS),  # binary in 1.1
+    (_YAML11, r"[-+]?(?:0x[0-9a-fA-F_]*_[0-9a-fA-F_]*|[0-9][0-9_]*_[0-9_]*(?:\.[0-9_]*)?"
+              r"(?:[eE][-+]?[0-9]+)?|[0-9][0-9_]*\.[0-9]*_[0-9_]*(?:[eE][-+]?[0-9]+)?)", _DIGITS),  # 1_000
+]:
+    _Resolver.add_implicit_resolver(_tag, re.compile(f"^(?:{_pattern})$"), list(_first))
+
+class _PythonParser(yaml.reader.Reader, yaml.scanner.Scanner, yaml.parser.Parser, _Resolver):
+    """PyYAML's pure-Python parser, with the same resolver (for PyYAML built without libyaml)."""
+
+    def __init__(self, stream):
+        yaml.reader.Reader.__init__(self, stream)
+        yaml.scanner.Scanner.__init__(self)
+        yaml.parser.Parser.__init__(self)
+        _Resolver.__init__(self)
+
+
+if yaml.__with_libyaml__:
+    class _CParser(yaml.cyaml.CParser, _Resolver):
+        """libyaml's C parser (events only; values are built by ``_Builder``)."""
+
+        def __init__(self, stream):
+            yaml.cyaml.CParser.__init__(self, stream)
+            _Resolver.__init__(self)
+
+    _Parser = _CParser
+else:  # pragma: no cover - PyYAML built without libyaml
+    _Parser = _PythonParser
+
+
+def _yaml11(text: str) -> YAML11Number:
+    """Why ``text`` is refused as a number: what YAML 1.1 and 1.2 make of it."""
+    body = text.lstrip("+-").replace("_", "")
+    sign = -1 if text.startswith("-") else 1
+    if ":" in body:
+        value = 0.0 if "." in body else 0
+        for part in body.split(":"):
+            value = value * 60 + (float(part) if "." in part else int(part))
+        old = sign * value
+        return YAML11Number(text, f"YAML 1.1 reads it as the base-60 number {old}, YAML 1.2 as text; "
+                                  f"write {old} if that is what you mean")
+    if body.startswith("0b"):
+        return YAML11Number(text, f"YAML 1.1 reads it as binary {sign * int(body[2:] or '0', 2)}, "
+                                  "YAML 1.2 as text")
+    if "_" in text:
+        return YAML11Number(text, f"YAML 1.1 reads it as {body if sign > 0 else '-' + body}, YAML 1.2 as text: "
+                                  "YAML 1.2 numbers have no digit separators")
+    decimal = sign * int(body)
+    if all(c in "01234567" for c in body):
+        return YAML11Number(text, f"YAML 1.1 reads it as octal {sign * int(body, 8)}, YAML 1.2 as {decimal}; "
+                                  f"write {decimal}, or 0o{body.lstrip('0') or '0'} for octal")
+    return YAML11Number(text, f"YAML 1.2 reads it as {decimal}, YAML 1.1 as text (a leading zero marks "
+                              f"octal there); write {decimal}")
+
+
+def _integer(text: str) -> int:
+    if text[:2] in ("0o", "0x"):
+        return int(text, 0)
+    return int(text)
+
+
+def _float(text: str) -> float:
+    lowered = text.lower()
+    if lowered.endswith(".inf"):
+        return -math.inf if text.startswith("-") else math.inf
+    if lowered == ".nan":
+        return math.nan
+    return float(text)
+
+
+_CONSTRUCT = {
+    _TAG + "null": lambda text: None,
+    _TAG + "bool": lambda text: text.lower() == "true",
+    _TAG + "int": _integer,
+    _TAG + "float": _float,
+    _TAG + "str": str,
+    _YAML11: _yaml11,
+}
+
+
+class _Problem(Exception):
+    """A YAML-level problem; the path is collected as it propagates outwards."""
+
+    def __init__(self, problem: str, mark=None):
+        super().__init__(problem)
+        self.problem, self.mark, self.parts = problem, mark, []
+
+    def path(self) -> str:
+        path = ""
+        for part in reversed(self.parts):
+            path = join(path, part if isinstance(part, int) else str(part))
+        return path
+
+
+_MISSING = object()
+_CACHE_LIMIT = 1 << 16  # plain scalars remembered (keys, repeated values); random coordinates are not
+
+
+class _Builder:
+    """Plain Python values from a parser's events (one document).
+
+    Collections count their depth; an anchored value's expanded size is
+    measured once (shared parts memoised) and every alias to it adds that
+    size to ``aliased``, so expansion is bounded without being performed.
+    Aliases share the anchored value, as PyYAML's constructor does.
+    """
+
+    def __init__(self, parser):
+        self.get_event = parser.get_event
+        self.resolve = parser.resolve
+        self.anchors: dict[str, tuple[Any, int]] = {}
+        self.open_anchors: set[str] = set()
+        self.aliased = 0
+        self.cache: dict[str, Any] = {}
+
+    def document(self) -> Any:
+        get = self.get_event
+        get()  # StreamStart
+        event = get()
+        if type(event) is StreamEndEvent:
+            return _MISSING
+        value = self.value(get(), 0)
+        if type(get()) is not DocumentEndEvent:
+            raise _Problem("expected the end of the document")
+        if type(get()) is not StreamEndEvent:
+            raise _Problem("the file holds more than one YAML document")
+        return value
+
+    def value(self, event, depth: int) -> Any:
+        kind = type(event)
+        if kind is ScalarEvent:
+            return self.scalar(event)
+        if kind is AliasEvent:
+            return self.alias(event)
+        if depth >= MAX_NESTING:
+            raise _Problem(f"nested more than {MAX_NESTING} levels deep", event.start_mark)
+        if event.tag is not None and event.tag not in ("!", _TAG + ("seq" if kind is SequenceStartEvent else "map")):
+            raise _Problem(f"unsupported tag {event.tag!r}", event.start_mark)
+        anchor = event.anchor
+        if anchor is not None:
+            self.open_anchors.add(anchor)
+        value = self.sequence(depth) if kind is SequenceStartEvent else self.mapping(depth)
+        if anchor is not None:
+            self.open_anchors.discard(anchor)
+            self.anchors[anchor] = (value, _expanded_size(value, {}, self.anchor_sizes()))
+        return value
+
+    def anchor_sizes(self) -> dict[int, int]:
+        return {id(v): size for v, size in self.anchors.values()}
+
+    def alias(self, event) -> Any:
+        name = event.anchor
+        if name in self.open_anchors:
+            raise _Problem(f"alias *{name} refers to a value that contains it", event.start_mark)
+        if name not in self.anchors:
+            raise _Problem(f"alias *{name} refers to no anchor &{name} before it", event.start_mark)
+        value, size = self.anchors[name]
+        self.aliased += size
+        if self.aliased > MAX_ALIAS_VALUES:
+            raise _Problem(f"aliases expand the document by more than {MAX_ALIAS_VALUES} values "
+                           "(alias bomb?)", event.start_mark)
+        return value
+
+    def scalar(self, event) -> Any:
+        text, tag = event.value, event.tag
+        if tag is None and event.implicit[0]:  # plain: typed by the resolver
+            value = self.cache.get(text, _MISSING)
+            if value is _MISSING:
+                value = self.construct(self.resolve(ScalarNode, text, (True, False)), text, event)
+                if len(self.cache) < _CACHE_LIMIT:
+                    self.cache[text] = value
+        elif tag is None or tag == "!":  # quoted, or the non-specific tag: text
+            value = text
+        else:
+            value = self.construct(tag, text, event)
+        if event.anchor is not None:
+            self.anchors[event.anchor] = (value, 1)
+        return value
+
+    def construct(self, tag: str, text: str, event) -> Any:
+        make = _CONSTRUCT.get(tag)
+        if make is None:
+            raise _Problem(f"unsupported tag {tag!r}", event.start_mark)
+        if tag != _TAG + "str" and event.implicit == (False, False):  # explicit !!int etc.: check the text
+            if tag != self.resolve(ScalarNode, text, (True, False)) and not (
+                    tag == _TAG + "float" and self.resolve(ScalarNode, text, (True, False)) == _TAG + "int"):
+                raise _Problem(f"{text!r} is not a valid {tag.removeprefix(_TAG)}", event.start_mark)
+        try:
+            return make(text)
+        except ValueError as e:  # e.g. an integer of more than 4300 digits
+            raise _Problem(f"cannot read {text[:40]!r}: {e}", event.start_mark) from None
+
+    def sequence(self, depth: int) -> list:
+        items: list = []
+        append, get, scalar, cached = items.append, self.get_event, self.scalar, self.cache.get
+        try:
+            while True:
+                event = get()
+                kind = type(event)
+                if kind is ScalarEvent:
+                    # a plain scalar seen before (keys, repeated values): no call
+                    value = cached(event.value, _MISSING) if event.tag is None and event.anchor is None \
+                        and event.implicit[0] else _MISSING
+                    append(scalar(event) if value is _MISSING else value)
+                elif kind is SequenceEndEvent:
+                    return items
+                else:
+                    append(self.value(event, depth + 1))
+        except _Problem as p:
+            p.parts.append(len(items))
+            raise
+
+    def mapping(self, depth: int) -> dict:
+        items: dict = {}
+        get, scalar, cached = self.get_event, self.scalar, self.cache.get
+        key = _MISSING
+        try:
+            while True:
+                event = get()
+                kind = type(event)
+                if kind is MappingEndEvent:
+                    return items
+                key = _MISSING
+                if kind is ScalarEvent:
+                    key = cached(event.value, _MISSING) if event.tag is None and event.anchor is None \
+                        and event.implicit[0] else _MISSING
+                    if key is _MISSING:
+                        key = scalar(event)
+                else:
+                    key = self.value(event, depth + 1)
+                try:
+                    duplicate = key in items
+                except TypeError:
+                    raise _Problem(f"a key must be a single value, not {describe(key)}", event.start_mark) from None
+                if duplicate:
+                    raise _Problem("duplicate key", event.start_mark)
+                event = get()
+                if type(event) is ScalarEvent:
+                    value = cached(event.value, _MISSING) if event.tag is None and event.anchor is None \
+                        and event.implicit[0] else _MISSING
+                    items[key] = scalar(event) if value is _MISSING else value
+                else:
+                    items[key] = self.value(event, depth + 1)
+        except _Problem as p:
+            if key is not _MISSING:
+                p.parts.append(key if isinstance(key, str) else repr(key))
+            raise
+
+
+def _expanded_size(value, memo: dict[int, int], anchored: dict[int, int]) -> int:
+    """Values in ``value`` once every alias inside it is expanded (linear time)."""
+    key = id(value)
+    if key in anchored:
+        return anchored[key]
+    if key in memo:
+        return memo[key]
+    if isinstance(value, list):
+        size = 1 + sum(_expanded_size(v, memo, anchored) for v in value)
+    elif isinstance(value, dict):
+        size = 1 + sum(_expanded_size(k, memo, anchored) + _expanded_size(v, memo, anchored)
+                       for k, v in value.items())
+    else:
+        return 1
+    memo[key] = size
+    return size
+
+
+def _size_text(size: int) -> str:
+    return f"{size / MiB:.1f} MiB ({size / 1e6:.1f} MB)"
+
+
+def read_yaml(data: bytes, source: str, *, size: int | None = None) -> Any:
+    """Parse YAML bytes safely into plain values, raising :class:`SceneError` on any problem.
+
+    ``size`` is the file's size when known (``data`` may hold only the first
+    ``MAX_FILE_BYTES + 1`` bytes of it).
+    """
     if len(data) > MAX_FILE_BYTES:
-        raise SceneError(source, "", f"file is {len(data)} bytes; the limit is {MAX_FILE_BYTES}")
+        actual = f"is {_size_text(size)}" if size and size > MAX_FILE_BYTES else f"is larger than {MAX_FILE_BYTES // MiB} MiB"
+        raise SceneError(source, "", f"file {actual}; the limit is {MAX_FILE_BYTES // MiB} MiB "
+                                     "(about 2 million spheres)")
     try:
-        text = data.decode("utf-8")
+        data.decode("utf-8")  # libyaml reads bytes itself; this only finds a bad byte early, with its offset
     except UnicodeDecodeError as e:
         raise SceneError(source, "", f"not UTF-8 text (byte {e.start}: {data[e.start:e.start + 1]!r})") from None
-    loader = None
+    parser = None
     try:
-        loader = _Loader(text)  # the reader already rejects some characters here
-        node = loader.get_single_node()
-        if node is None:
-            raise SceneError(source, "", "the file is empty")
-        _check_tree(node, source)
-        return loader.construct_document(node)
+        parser = _Parser(data)
+        value = _Builder(parser).document()
+    except _Problem as p:
+        where = f" (line {p.mark.line + 1}, column {p.mark.column + 1})" if p.mark is not None else ""
+        raise SceneError(source, p.path(), f"{p.problem}{where}") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
@@ -123,8 +394,11 @@ def read_yaml(data: bytes, source: str) -> Any:
     except RecursionError:
         raise SceneError(source, "", "YAML nested too deeply") from None
     finally:
-        if loader is not None:
-            loader.dispose()
+        if parser is not None and hasattr(parser, "dispose"):
+            parser.dispose()
+    if value is _MISSING:
+        raise SceneError(source, "", "the file is empty")
+    return value
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
@@ -138,251 +412,183 @@ def load_scene(path: str | os.PathLike) -> Scene:
     source = os.fspath(path)
     try:
         with open(source, "rb") as f:
+            try:
+                size = os.fstat(f.fileno()).st_size
+            except OSError:
+                size = None
+            if size and size > MAX_FILE_BYTES:  # refuse before reading a huge file
+                raise SceneError(source, "", f"file is {_size_text(size)}; the limit is "
+                                             f"{MAX_FILE_BYTES // MiB} MiB (about 2 million spheres)")
             data = f.read(MAX_FILE_BYTES + 1)
     except OSError as e:
         raise SceneError(source, "", f"cannot read: {e.strerror or e}") from None
-    doc = read_yaml(data, source)
+    doc = read_yaml(data, source, size=size)
+    del data
     name = os.path.splitext(os.path.basename(source))[0]
-    return scene_from_dict(doc, source=source, default_name=name)
+    return _scene_from_document(doc, source, name, consume=True)
 
 
 # ---------------------------------------------------------------------------
-# Validation helpers: each takes the value and its YAML path.
+# The document's shape; the values' rules are the objects' own.
 
-class _Reader:
-    def __init__(self, source: str):
-        self.source = source
-
-    def fail(self, path: str, problem: str):
-        raise SceneError(self.source, path, problem)
-
-    def mapping(self, value, path: str, allowed: set[str], required: set[str] = frozenset()) -> dict:
-        if value is None:
-            value = {}
-        if not isinstance(value, dict):
-            self.fail(path, f"expected a mapping, got {_describe(value)}")
-        for key in value:
-            if not isinstance(key, str):
-                self.fail(path, f"keys must be strings, got {_describe(key)}")
-            if key not in allowed:
-                self.fail(_join(path, key), f"unknown key (expected one of: {', '.join(sorted(allowed))})")
-        for key in sorted(required):
-            if key not in value:
-                self.fail(_join(path, key), "required key is missing")
-        return value
-
-    def number(self, value, path: str, *, low=None, low_open=False, high=None, high_open=False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(path, f"expected a number, got {_describe(value)}")
-        x = float(value) if not isinstance(value, int) or abs(value) < 2**1023 else math.inf
-        if not math.isfinite(x):
-            self.fail(path, f"must be finite, got {value!r}")
-        if low is not None and (x <= low if low_open else x < low):
-            self.fail(path, f"must be {'>' if low_open else '>='} {low}, got {value!r}")
-        if high is not None and (x >= high if high_open else x > high):
-            self.fail(path, f"must be {'<' if high_open else '<='} {high}, got {value!r}")
-        return x
-
-    def integer(self, value, path: str, *, low=None, high=None) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and math.isfinite(value) and value.is_integer():
-                value = int(value)
-            else:
-                self.fail(path, f"expected an integer, got {_describe(value)}")
-        if low is not None and value < low:
-            self.fail(path, f"must be >= {low}, got {value}")
-        if high is not None and value > high:
-            self.fail(path, f"must be <= {high}, got {value}")
-        return value
-
-    def vec3(self, value, path: str, *, low=None, high=None) -> tuple[float, float, float]:
-        if not isinstance(value, (list, tuple)) or len(value) != 3:
-            self.fail(path, f"expected a list of 3 numbers, got {_describe(value)}")
-        return tuple(self.number(v, f"{path}[{i}]", low=low, high=high) for i, v in enumerate(value))
-
-    def color(self, value, path: str, *, high=None) -> tuple[float, float, float]:
-        return self.vec3(value, path, low=0.0, high=high)
-
-    def string(self, value, path: str, choices=None) -> str:
-        if not isinstance(value, str):
-            self.fail(path, f"expected a string, got {_describe(value)}")
-        if choices is not None and value not in choices:
-            self.fail(path, f"unknown value {value!r} (expected one of: {', '.join(choices)})")
-        return value
-
-
-def _describe(value) -> str:
+def _mapping(source: str, value, path: str, allowed, required=()) -> dict:
     if value is None:
-        return "nothing (null)"
-    kind = {bool: "boolean", int: "integer", float: "number", str: "string",
-            list: "list", dict: "mapping"}.get(type(value), type(value).__name__)
-    if isinstance(value, (list, dict)):
-        return f"a {kind} of {len(value)} item{'s' if len(value) != 1 else ''}"
-    text = repr(value)
-    return f"{kind} {text[:40] + '...' if len(text) > 40 else text}"
+        value = {}
+    if not isinstance(value, dict):
+        raise SceneError(source, path, f"expected a mapping, got {describe(value)}")
+    for key in value:
+        if not isinstance(key, str):
+            raise SceneError(source, path, f"keys must be strings, got {describe(key)}")
+        if key not in allowed:
+            if key == "<<":
+                raise SceneError(source, join(path, key), "merge keys (<<) are YAML 1.1, not 1.2; "
+                                                          "write the keys out, or alias the whole mapping")
+            raise SceneError(source, join(path, key), f"unknown key (expected one of: {', '.join(sorted(allowed))})")
+    for key in sorted(required):
+        if key not in value:
+            raise SceneError(source, join(path, key), "required key is missing")
+    return value
 
 
-# ---------------------------------------------------------------------------
-# The schema
-
-_MATERIAL_KEYS = {
-    "lambertian": {"albedo"},
-    "metal": {"albedo", "fuzz"},
-    "dielectric": {"refraction_index"},
-    "emissive": {"color"},
-    "phong": {"ambient", "diffuse", "specular", "shininess", "reflectivity"},
-}
+def _fields(cls) -> tuple[set[str], set[str]]:
+    """A dataclass's keys in a file: (all, required)."""
+    fields = dataclasses.fields(cls)
+    required = {f.name for f in fields
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING}
+    return {f.name for f in fields}, required
 
 
-def _material(r: _Reader, value, path: str):
-    spec = r.mapping(value, path, {"type"} | set().union(*_MATERIAL_KEYS.values()), {"type"})
-    kind = r.string(spec["type"], _join(path, "type"), tuple(_MATERIAL_KEYS))
-    r.mapping(spec, path, {"type"} | _MATERIAL_KEYS[kind])
-    p = lambda key: _join(path, key)  # noqa: E731
-    if kind == "lambertian":
-        return Lambertian(**({"albedo": r.color(spec["albedo"], p("albedo"))} if "albedo" in spec else {}))
-    if kind == "metal":
-        kw = {}
-        if "albedo" in spec:
-            kw["albedo"] = r.color(spec["albedo"], p("albedo"))
-        if "fuzz" in spec:
-            fuzz = r.number(spec["fuzz"], p("fuzz"), low=0.0)
-            if fuzz > 1.0:
-                warnings.warn(f"{r.source}: {p('fuzz')}: {fuzz} clamped to 1", SceneWarning, stacklevel=2)
-            kw["fuzz"] = min(fuzz, 1.0)
-        return Metal(**kw)
-    if kind == "dielectric":
-        kw = {}
-        if "refraction_index" in spec:
-            kw["refraction_index"] = r.number(spec["refraction_index"], p("refraction_index"), low=0.0, low_open=True)
-        return Dielectric(**kw)
-    if kind == "emissive":
-        return Emissive(**({"color": r.color(spec["color"], p("color"))} if "color" in spec else {}))
-    kw = {}
-    for key in ("ambient", "diffuse", "specular"):
-        if key in spec:
-            kw[key] = r.color(spec[key], p(key))
-    if "reflectivity" in spec:
-        kw["reflectivity"] = r.color(spec["reflectivity"], p("reflectivity"), high=1.0)
-    if "shininess" in spec:
-        kw["shininess"] = r.number(spec["shininess"], p("shininess"), low=0.0)
-    return Phong(**kw)
+def _build(source: str, path: str, cls, spec: dict, **fixed):
+    """``cls(**spec)``, its errors and warnings re-issued under ``source`` and ``path``."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SceneWarning)
+        try:
+            obj = cls(**spec, **fixed)
+        except SceneError as e:
+            raise e.within(source, path) from None
+    for w in caught:
+        if issubclass(w.category, SceneWarning) and hasattr(w.message, "path"):
+            warnings.warn(SceneWarning(f"{source}: {join(path, w.message.path)}: {w.message.problem}"), stacklevel=4)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return obj
+
+
+def _object(source: str, value, path: str, cls, extra=frozenset()):
+    allowed, required = _fields(cls)
+    spec = _mapping(source, value, path, allowed | extra, required)
+    return _build(source, path, cls, {k: v for k, v in spec.items() if k not in extra})
+
+
+_MATERIALS = {cls.kind: cls for cls in MATERIAL_TYPES}
+_BACKGROUNDS = {cls.type: cls for cls in (Sky, Solid)}
+_SPHERE_KEYS = frozenset(f.name for f in dataclasses.fields(Sphere))
+_SCENE_PATHS = {"width": "image.width", "height": "image.height", "": "image"}  # Scene's names -> YAML paths
+
+
+def _typed(source: str, value, path: str, kinds: dict, default=None):
+    """An object chosen by the mapping's ``type`` key."""
+    spec = _mapping(source, value, path, {"type"} | set().union(*(_fields(c)[0] for c in kinds.values())),
+                    () if default else {"type"})
+    kind = spec.get("type", default)
+    try:
+        kind = string(None, kind, "type", tuple(kinds))
+    except SceneError as e:
+        raise e.within(source, path) from None
+    return _object(source, spec, path, kinds[kind], extra={"type"})
 
 
 def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "scene") -> Scene:
     """Validate a parsed scene document and build the :class:`Scene`."""
-    r = _Reader(source)
-    top = r.mapping(doc, "", {"name", "image", "camera", "render", "background", "materials",
-                              "spheres", "lights", "ambient"}, {"spheres"})
+    return _scene_from_document(doc, source, default_name, consume=False)
 
-    name = r.string(top["name"], "name") if "name" in top else default_name
 
-    image = r.mapping(top.get("image"), "image", {"width", "height"})
-    width = r.integer(image.get("width", 400), "image.width", low=1)
-    height = r.integer(image.get("height", 225), "image.height", low=1)
-    if width * height > MAX_PIXELS:
-        r.fail("image", f"{width}x{height} is more than {MAX_PIXELS} pixels")
+def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: bool) -> Scene:
+    top = _mapping(source, doc, "", {"name", "image", "camera", "render", "background", "materials",
+                                     "spheres", "lights", "ambient"}, {"spheres"})
+    image = _mapping(source, top.get("image"), "image", {"width", "height"})
+    render = _object(source, top.get("render"), "render", RenderSettings)
+    camera = _object(source, top.get("camera"), "camera", Camera)
+    background = _typed(source, top.get("background"), "background", _BACKGROUNDS, default="sky")
 
-    rs = r.mapping(top.get("render"), "render", {"samples_per_pixel", "max_depth", "seed", "integrator", "precision"})
-    integrator = r.string(rs.get("integrator", "path"), "render.integrator", INTEGRATORS)
-    settings = RenderSettings(
-        samples_per_pixel=r.integer(rs.get("samples_per_pixel", 100), "render.samples_per_pixel",
-                                    low=1, high=MAX_SAMPLES_PER_PIXEL),
-        max_depth=r.integer(rs["max_depth"], "render.max_depth", low=1, high=MAX_DEPTH) if "max_depth" in rs else None,
-        seed=r.integer(rs.get("seed", 0), "render.seed", low=0, high=MAX_SEED),
-        integrator=integrator,
-        precision=r.string(rs.get("precision", "auto"), "render.precision", PRECISIONS),
-    )
-
-    camera = _camera(r, top.get("camera"))
-    background = _background(r, top.get("background"))
-
-    mats = top.get("materials") or {}
-    if not isinstance(mats, dict):
-        r.fail("materials", f"expected a mapping of names to materials, got {_describe(mats)}")
+    materials_doc = top.get("materials") or {}
+    if not isinstance(materials_doc, dict):
+        raise SceneError(source, "materials", f"expected a mapping of names to materials, got {describe(materials_doc)}")
     materials = {}
-    for key, spec in mats.items():
+    for key, spec in materials_doc.items():
         if not isinstance(key, str):
-            r.fail("materials", f"material names must be strings, got {_describe(key)}")
-        materials[key] = _material(r, spec, f"materials.{key}")
+            raise SceneError(source, "materials", f"material names must be strings, got {describe(key)}")
+        materials[key] = _typed(source, spec, f"materials.{key}", _MATERIALS)
 
     spheres_doc = top["spheres"]
-    if spheres_doc is None:
-        spheres_doc = []
-    if not isinstance(spheres_doc, list):
-        r.fail("spheres", f"expected a list, got {_describe(spheres_doc)}")
-    spheres = []
-    for i, spec in enumerate(spheres_doc):
-        path = f"spheres[{i}]"
-        spec = r.mapping(spec, path, {"center", "radius", "material"}, {"center", "radius", "material"})
-        material = r.string(spec["material"], f"{path}.material")
-        if material not in materials:
-            known = ", ".join(sorted(materials)) or "none"
-            r.fail(f"{path}.material", f"unknown material {material!r} (defined: {known})")
-        spheres.append(Sphere(
-            center=r.vec3(spec["center"], f"{path}.center"),
-            radius=r.number(spec["radius"], f"{path}.radius", low=0.0, low_open=True),
-            material=material,
-        ))
+    if consume:  # load_scene's document: let the per-sphere mappings go as soon as they are read
+        top["spheres"] = None
+    defined = {unicodedata.normalize("NFC", key) for key in materials}
+    spheres = _spheres(source, spheres_doc if spheres_doc is not None else [], defined, consume)
+    del spheres_doc
 
     lights_doc = top.get("lights") or []
     if not isinstance(lights_doc, list):
-        r.fail("lights", f"expected a list, got {_describe(lights_doc)}")
+        raise SceneError(source, "lights", f"expected a list, got {describe(lights_doc)}")
     lights = []
     for i, spec in enumerate(lights_doc):
         path = f"lights[{i}]"
-        spec = r.mapping(spec, path, {"type", "position", "color"}, {"position"})
-        r.string(spec.get("type", "point"), f"{path}.type", ("point",))
-        lights.append(PointLight(
-            position=r.vec3(spec["position"], f"{path}.position"),
-            color=r.color(spec["color"], f"{path}.color") if "color" in spec else (1.0, 1.0, 1.0),
-        ))
-    ambient = r.color(top["ambient"], "ambient") if "ambient" in top else (0.0, 0.0, 0.0)
+        spec = _mapping(source, spec, path, _fields(PointLight)[0] | {"type"}, _fields(PointLight)[1])
+        try:
+            string(None, spec.get("type", "point"), "type", ("point",))
+        except SceneError as e:
+            raise e.within(source, path) from None
+        lights.append(_object(source, spec, path, PointLight, extra={"type"}))
 
-    if integrator == "path" and (lights or "ambient" in top):
+    fields = {"spheres": spheres, "materials": materials, "camera": camera, "render": render,
+              "background": background, "lights": tuple(lights)}
+    for key in ("width", "height"):
+        if key in image:
+            fields[key] = image[key]
+    for key in ("ambient", "name"):
+        if key in top:
+            fields[key] = top[key]
+    fields.setdefault("name", default_name)
+    try:
+        scene = Scene(**fields)
+    except SceneError as e:
+        path, _, rest = e.path.partition(".")
+        raise SceneError(source, _SCENE_PATHS.get(path, path) + (f".{rest}" if rest else ""), e.problem) from None
+
+    if render.integrator == "path" and (lights or "ambient" in top):
         warnings.warn(f"{source}: lights/ambient are ignored by the path integrator "
-                      "(it is lit by emissive spheres and the background)", SceneWarning, stacklevel=2)
-
-    return Scene(spheres=spheres, materials=materials, camera=camera, width=width, height=height,
-                 render=settings, background=background, lights=tuple(lights), ambient=ambient, name=name)
+                      "(it is lit by emissive spheres and the background)", SceneWarning, stacklevel=3)
+    return scene
 
 
-def _camera(r: _Reader, value) -> Camera:
-    spec = r.mapping(value, "camera", {"look_from", "look_at", "vup", "vfov", "defocus_angle", "focus_dist"})
-    d = Camera()
-    look_from = r.vec3(spec["look_from"], "camera.look_from") if "look_from" in spec else d.look_from
-    look_at = r.vec3(spec["look_at"], "camera.look_at") if "look_at" in spec else d.look_at
-    vup = r.vec3(spec["vup"], "camera.vup") if "vup" in spec else d.vup
-    forward = [b - a for a, b in zip(look_from, look_at)]
-    if math.hypot(*forward) <= 1e-12 * max(1.0, math.hypot(*look_from)):
-        r.fail("camera.look_at", "must differ from camera.look_from")
-    cross = (vup[1] * forward[2] - vup[2] * forward[1],
-             vup[2] * forward[0] - vup[0] * forward[2],
-             vup[0] * forward[1] - vup[1] * forward[0])
-    if math.hypot(*cross) <= 1e-9 * math.hypot(*vup) * math.hypot(*forward):
-        r.fail("camera.vup", "must not be zero or parallel to the view direction (look_at - look_from)")
-    return Camera(
-        look_from=look_from,
-        look_at=look_at,
-        vup=vup,
-        vfov=r.number(spec.get("vfov", d.vfov), "camera.vfov",
-                      low=0.0, low_open=True, high=180.0, high_open=True),
-        defocus_angle=r.number(spec.get("defocus_angle", 0.0), "camera.defocus_angle",
-                               low=0.0, high=180.0, high_open=True),
-        focus_dist=(r.number(spec["focus_dist"], "camera.focus_dist", low=0.0, low_open=True)
-                    if "focus_dist" in spec else None),
-    )
-
-
-def _background(r: _Reader, value):
-    spec = r.mapping(value, "background", {"type", "bottom", "top", "color"})
-    kind = r.string(spec.get("type", "sky"), "background.type", ("sky", "solid"))
-    if kind == "sky":
-        r.mapping(spec, "background", {"type", "bottom", "top"})
-        d = Sky()
-        return Sky(
-            bottom=r.color(spec["bottom"], "background.bottom") if "bottom" in spec else d.bottom,
-            top=r.color(spec["top"], "background.top") if "top" in spec else d.top,
-        )
-    r.mapping(spec, "background", {"type", "color"})
-    return Solid(color=r.color(spec["color"], "background.color") if "color" in spec else (0.0, 0.0, 0.0))
+def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere]:
+    """The ``spheres`` list: in bulk when every entry is a mapping of exactly
+    center, radius and material (see ``Sphere.many``), else one at a time.
+    Either way the first problem in the file's order is the one reported."""
+    if not isinstance(docs, list):
+        raise SceneError(source, "spheres", f"expected a list, got {describe(docs)}")
+    if set(map(type, docs)) <= {dict} and all(map(operator.eq, map(dict.keys, docs), repeat(_SPHERE_KEYS))):
+        centers = list(map(operator.itemgetter("center"), docs))
+        radii = list(map(operator.itemgetter("radius"), docs))
+        materials = list(map(operator.itemgetter("material"), docs))
+        unknown = {m for m in {m for m in materials if isinstance(m, str)}
+                   if unicodedata.normalize("NFC", m) not in defined}
+        end = next(i for i, m in enumerate(materials) if isinstance(m, str) and m in unknown) if unknown else None
+        if consume:
+            docs.clear()
+        try:
+            spheres = Sphere.many(centers[:end], radii[:end], materials[:end])
+        except SceneError as e:
+            raise e.within(source, "spheres") from None
+        if unknown:
+            raise SceneError(source, f"spheres[{end}].material", unknown_material(materials[end], defined))
+        return spheres
+    allowed, required = _fields(Sphere)
+    spheres = []
+    for i, spec in enumerate(docs):
+        path = f"spheres[{i}]"
+        sphere = _build(source, path, Sphere, _mapping(source, spec, path, allowed, required))
+        if isinstance(sphere.material, str) and sphere.material not in defined:
+            raise SceneError(source, f"{path}.material", unknown_material(sphere.material, defined))
+        spheres.append(sphere)
+    return spheres

@@ -1,0 +1,172 @@
+"""Scene objects built in Python obey the scene file's rules (issue #10, items 10 and 11).
+
+Each refusal is a SceneError naming the object (``<Sphere>``, ``<Scene>``) and
+the field (``radius``, ``spheres[1].material``); the same values in a file are
+refused with the file's name and YAML path by the same code.
+"""
+
+import math
+import unicodedata
+import warnings
+
+import numpy as np
+import pytest
+
+from wavefront import (Camera, Dielectric, Emissive, Lambertian, Metal, Phong, PointLight, RenderSettings, Scene,
+                       SceneError, Sky, Solid, Sphere, render)
+from wavefront.scenefile import scene_from_dict
+
+
+def scene(**changes):
+    base = dict(spheres=[Sphere((0, 0, -1), 0.5, "ball"), Sphere((0, -100.5, -1), 100, "ball")],
+                materials={"ball": Lambertian((0.5, 0.5, 0.5))}, width=8, height=6,
+                render=RenderSettings(samples_per_pixel=2))
+    base.update(changes)
+    return Scene(**base)
+
+
+def refused(make, source, path, problem):
+    with pytest.raises(SceneError) as e:
+        make()
+    prefix = f"{source}: {path}: " if path else f"{source}: "
+    assert str(e.value).startswith(prefix), str(e.value)
+    assert problem in str(e.value), str(e.value)
+    return e.value
+
+
+OBJECT_CASES = [
+    (lambda: Sphere((0, 0, 0), -1.0, "m"), "<Sphere>", "radius", "> 0"),
+    (lambda: Sphere((0, 0, 0), 0, "m"), "<Sphere>", "radius", "> 0"),
+    (lambda: Sphere((0, 0, 0), math.nan, "m"), "<Sphere>", "radius", "finite"),
+    (lambda: Sphere((0, math.inf, 0), 1, "m"), "<Sphere>", "center[1]", "finite"),
+    (lambda: Sphere((0, 0), 1, "m"), "<Sphere>", "center", "3 numbers"),
+    (lambda: Sphere((0, "x", 0), 1, "m"), "<Sphere>", "center[1]", "expected a number"),
+    (lambda: Sphere((0, 0, 0), True, "m"), "<Sphere>", "radius", "expected a number"),
+    (lambda: Sphere((0, 0, 0), "1", "m"), "<Sphere>", "radius", "expected a number"),
+    (lambda: Sphere((0, 0, 0), 1, None), "<Sphere>", "material", "expected a string"),
+    (lambda: Lambertian((1, -1, 1)), "<Lambertian>", "albedo[1]", ">= 0"),
+    (lambda: Lambertian((1, 1)), "<Lambertian>", "albedo", "3 numbers"),
+    (lambda: Metal(fuzz=-0.1), "<Metal>", "fuzz", ">= 0"),
+    (lambda: Dielectric(0), "<Dielectric>", "refraction_index", "> 0"),
+    (lambda: Dielectric(math.inf), "<Dielectric>", "refraction_index", "finite"),
+    (lambda: Emissive((1, 1, math.nan)), "<Emissive>", "color[2]", "finite"),
+    (lambda: Phong(reflectivity=(0, 1.5, 0)), "<Phong>", "reflectivity[1]", "<= 1"),
+    (lambda: Phong(shininess=-1), "<Phong>", "shininess", ">= 0"),
+    (lambda: Sky(top=(1, 1, -1)), "<Sky>", "top[2]", ">= 0"),
+    (lambda: Solid("red"), "<Solid>", "color", "3 numbers"),
+    (lambda: PointLight((0, 0)), "<PointLight>", "position", "3 numbers"),
+    (lambda: PointLight((0, 0, 0), (1, -1, 1)), "<PointLight>", "color[1]", ">= 0"),
+    (lambda: Camera(look_from=(1, 2, 3), look_at=(1, 2, 3)), "<Camera>", "look_at", "must differ"),
+    (lambda: Camera(vup=(0, 0, 2)), "<Camera>", "vup", "parallel"),
+    (lambda: Camera(vup=(0, 0, 0)), "<Camera>", "vup", "zero"),
+    (lambda: Camera(vfov=180), "<Camera>", "vfov", "< 180"),
+    (lambda: Camera(focus_dist=0), "<Camera>", "focus_dist", "> 0"),
+    (lambda: Camera(look_from=(0, 0)), "<Camera>", "look_from", "3 numbers"),
+    (lambda: RenderSettings(samples_per_pixel=0), "<RenderSettings>", "samples_per_pixel", ">= 1"),
+    (lambda: RenderSettings(samples_per_pixel=1 << 25), "<RenderSettings>", "samples_per_pixel", "<= 16777216"),
+    (lambda: RenderSettings(max_depth=10_001), "<RenderSettings>", "max_depth", "<= 10000"),
+    (lambda: RenderSettings(max_depth=0), "<RenderSettings>", "max_depth", ">= 1"),
+    (lambda: RenderSettings(seed=-1), "<RenderSettings>", "seed", ">= 0"),
+    (lambda: RenderSettings(seed=2**63), "<RenderSettings>", "seed", "<="),
+    (lambda: RenderSettings(samples_per_pixel=2.5), "<RenderSettings>", "samples_per_pixel", "integer"),
+    (lambda: RenderSettings(integrator="bidir"), "<RenderSettings>", "integrator", "unknown value"),
+    (lambda: scene(width=0), "<Scene>", "width", ">= 1"),
+    (lambda: scene(height=-3), "<Scene>", "height", ">= 1"),
+    (lambda: scene(width=1 << 15, height=1 << 14), "<Scene>", "", "pixels"),
+    (lambda: scene(spheres=[Sphere((0, 0, -1), 0.5, "ball"), Sphere((0, 0, -1), 0.5, "nowhere")]),
+     "<Scene>", "spheres[1].material", "unknown material 'nowhere'"),
+    (lambda: scene(spheres=[Sphere((0, 0, -1), 0.5, "ball"), (0, 0, 1)]), "<Scene>", "spheres[1]", "a Sphere"),
+    (lambda: scene(materials={"ball": (0.5, 0.5, 0.5)}), "<Scene>", "materials.ball", "a material"),
+    (lambda: scene(camera={"look_from": (0, 0, 0)}), "<Scene>", "camera", "a Camera"),
+    (lambda: scene(ambient=(1, 1)), "<Scene>", "ambient", "3 numbers"),
+    (lambda: scene(lights=[(0, 0, 0)]), "<Scene>", "lights[0]", "a PointLight"),
+]
+
+
+@pytest.mark.parametrize("make,source,path,problem", OBJECT_CASES,
+                         ids=[f"{c[1]}.{c[2]}:{c[3]}" for c in OBJECT_CASES])
+def test_objects_refuse_what_files_refuse(make, source, path, problem):
+    refused(make, source, path, problem)
+
+
+def test_the_objects_normalise_their_values():
+    s = Sphere(np.array([0, 1, 2]), np.float32(0.5), "m")
+    assert s.center == (0.0, 1.0, 2.0) and type(s.center[0]) is float and type(s.radius) is float
+    assert RenderSettings(samples_per_pixel=np.int64(4), seed=4.0).samples_per_pixel == 4
+    assert Scene(spheres=(s,), materials={"m": Lambertian()}).spheres == [s]
+
+
+def test_overrides_and_replace_are_validated():
+    base = scene()
+    refused(lambda: base.with_overrides(samples_per_pixel=0), "<Scene>", "render.samples_per_pixel", ">= 1")
+    refused(lambda: base.with_overrides(max_depth=10_001), "<Scene>", "render.max_depth", "<= 10000")
+    refused(lambda: base.with_overrides(width=0), "<Scene>", "width", ">= 1")
+    refused(lambda: base.with_overrides(width=1 << 20, height=1 << 20), "<Scene>", "", "pixels")
+    refused(lambda: base.replace(spheres=[Sphere((0, 0, 0), 1, "x")]), "<Scene>", "spheres[0].material", "unknown")
+    assert base.with_overrides(width=16).height == 12
+
+
+def test_a_missing_material_is_a_scene_error_not_a_key_error():
+    """It was a bare KeyError from compile()."""
+    refused(lambda: render(scene(spheres=[Sphere((0, 0, -1), 0.5, "missing")])),
+            "<Scene>", "spheres[0].material", "unknown material")
+
+
+def test_material_names_are_unicode_nfc_in_objects_and_files():
+    nfd, nfc = unicodedata.normalize("NFD", "é"), unicodedata.normalize("NFC", "é")
+    assert nfd != nfc
+    s = scene(spheres=[Sphere((0, 0, -1), 0.5, nfd)], materials={nfc: Lambertian()})
+    assert s.spheres[0].material == nfc
+    s = scene(spheres=[Sphere((0, 0, -1), 0.5, nfc)], materials={nfd: Lambertian()})
+    assert list(s.materials) == [nfc]
+    refused(lambda: scene(spheres=[], materials={nfd: Lambertian(), nfc: Metal()}),
+            "<Scene>", f"materials.{nfc}", "another Unicode form")
+    doc = {"materials": {nfd: {"type": "lambertian"}}, "spheres": [{"center": [0, 0, -1], "radius": 1, "material": nfc}]}
+    assert scene_from_dict(doc).spheres[0].material == nfc
+
+
+@pytest.mark.parametrize("radius", [5e-324, 1e-200, 1e-160, 1e200, 1.7e308])
+def test_radii_float64_cannot_square_or_invert_are_refused_cleanly(radius):
+    """5e-324 printed a bare NumPy overflow warning (1/r is inf, r*r is 0)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        e = refused(lambda: Sphere((0, 0, -1), radius, "m"), "<Sphere>", "radius", "float64")
+        assert "too small" in str(e) if radius < 1 else "too large" in str(e)
+
+
+def test_tiny_radius_within_the_limit_renders_without_warnings():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        image = render(scene(spheres=[Sphere((0, 0, -1), 1e-150, "ball"), Sphere((0, -100.5, -1), 100, "ball")]),
+                       workers=1)
+    assert np.isfinite(image).all()
+
+
+def test_a_far_camera_one_unit_from_its_target_renders():
+    """look_from [1e12, 0, 0], look_at [1e12, 0, -1] differ by one unit; float64
+    positions there are 1.2e-4 apart, far finer than a pixel, so it renders."""
+    cam = Camera(look_from=(1e12, 0, 0), look_at=(1e12, 0, -1))
+    s = scene(camera=cam, spheres=[Sphere((1e12, 0, -3), 1, "ball")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        image = render(s, workers=1)
+    assert np.isfinite(image).all() and image.max() > 0
+
+
+def test_an_unresolvable_view_says_what_precision_is_missing():
+    e = refused(lambda: scene(camera=Camera(look_from=(1e15, 0, 0), look_at=(1e15, 0, -1))),
+                "<Scene>", "camera.look_at", "cannot be resolved in float64")
+    assert "0.125 apart" in str(e) and "equal" not in str(e)
+
+
+def test_metal_fuzz_above_one_warns_with_the_field():
+    with pytest.warns(Warning, match=r"<Metal>: fuzz: 2.5 clamped to 1"):
+        assert Metal(fuzz=2.5).fuzz == 1.0
+
+
+def test_limits_live_with_the_objects_and_stay_importable_from_scenefile():
+    from wavefront import scene as scene_module
+    from wavefront import scenefile
+    for name in ("MAX_PIXELS", "MAX_SAMPLES_PER_PIXEL", "MAX_DEPTH", "MAX_SEED"):
+        assert getattr(scenefile, name) == getattr(scene_module, name)
+    assert scenefile.SceneError is SceneError
