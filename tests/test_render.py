@@ -37,7 +37,9 @@ def test_chunk_size_does_not_change_the_image(scene, reference_image, chunk_size
 
 
 def test_worker_count_does_not_change_the_image(scene, reference_image):
-    np.testing.assert_array_equal(render(scene, workers=2, chunk_size=1000), reference_image)
+    result = render_scene(scene, workers=2, chunk_size=1000, memory=4 << 30)
+    assert result.stats.workers == 2  # the budget did not quietly fall back to one process
+    np.testing.assert_array_equal(result.image, reference_image)
 
 
 def test_image_layout_and_finiteness(reference_image):
