@@ -128,6 +128,12 @@ def position(obj, value, path: str) -> tuple[float, float, float]:
     return vec3(obj, value, path, low=-MAX_COORDINATE, high=MAX_COORDINATE)
 
 
+def _chunked_tolist(array: np.ndarray, rows: int = 1 << 16):
+    """``array.tolist()`` row by row without holding every row's list at once."""
+    for start in range(0, len(array), rows):
+        yield from array[start:start + rows].tolist()
+
+
 def _many_unchecked(centers, radii, materials) -> list[Sphere] | None:
     """The spheres if every value is plainly valid, else None (see ``Sphere.many``)."""
     n = len(radii)
@@ -151,10 +157,18 @@ def _many_unchecked(centers, radii, materials) -> list[Sphere] | None:
     if not ok:
         return None
     normal = {m: unicodedata.normalize("NFC", m) for m in set(materials)}
+    # the values are Python floats already when the file wrote every number with
+    # a point or exponent: reuse them rather than make a million new ones
+    if set(map(type, itertools.chain.from_iterable(centers))) == {float}:
+        center_tuples = map(tuple, centers)
+    else:
+        center_tuples = (tuple(c) for c in _chunked_tolist(center))
+    radius_values = radii if set(map(type, radii)) == {float} else _chunked_tolist(radius)
+    del center, radius
     new, set_field = object.__new__, object.__setattr__
     spheres = []
     append = spheres.append
-    for c, r, m in zip(map(tuple, center.tolist()), radius.tolist(), materials):
+    for c, r, m in zip(center_tuples, radius_values, materials):
         s = new(Sphere)
         set_field(s, "center", c)
         set_field(s, "radius", r)
