@@ -207,6 +207,7 @@ class _Builder:
         self.get_event = parser.get_event
         self.resolve = parser.resolve
         self.anchors: dict[str, tuple[Any, int]] = {}
+        self.anchored_sizes: dict[int, int] = {}  # id(anchored collection) -> expanded size
         self.open_anchors: set[str] = set()
         self.aliased = 0
         self.cache: dict[str, Any] = {}
@@ -240,11 +241,10 @@ class _Builder:
         value = self.sequence(depth) if kind is SequenceStartEvent else self.mapping(depth)
         if anchor is not None:
             self.open_anchors.discard(anchor)
-            self.anchors[anchor] = (value, _expanded_size(value, {}, self.anchor_sizes()))
+            size = _expanded_size(value, {}, self.anchored_sizes)
+            self.anchors[anchor] = (value, size)
+            self.anchored_sizes[id(value)] = size  # the value stays alive in anchors: its id is stable
         return value
-
-    def anchor_sizes(self) -> dict[int, int]:
-        return {id(v): size for v, size in self.anchors.values()}
 
     def alias(self, event) -> Any:
         name = event.anchor
