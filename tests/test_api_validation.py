@@ -11,6 +11,8 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from wavefront import (Camera, Dielectric, Emissive, Lambertian, Metal, Phong, PointLight, RenderSettings, Scene,
                        SceneError, Sky, Solid, Sphere, render)
@@ -170,3 +172,41 @@ def test_limits_live_with_the_objects_and_stay_importable_from_scenefile():
     for name in ("MAX_PIXELS", "MAX_SAMPLES_PER_PIXEL", "MAX_DEPTH", "MAX_SEED"):
         assert getattr(scenefile, name) == getattr(scene_module, name)
     assert scenefile.SceneError is SceneError
+
+
+EDGES = st.one_of(
+    st.sampled_from([0, 1, -1, 0.5, -0.0, 1e-150, 9.9e-151, 1e150, 1.0000001e150, 5e-324, 1e308, 10**400, -10**400,
+                     math.nan, math.inf, -math.inf, True, None, "1", np.float32(2.0), np.int64(3)]),
+    st.floats(), st.integers(),
+)
+# mostly plain values, so that whole lists often take the bulk path and an edge is the one odd value
+COORDINATE = st.one_of(*[st.floats(-100, 100)] * 3, st.integers(-100, 100), EDGES)
+RADIUS = st.one_of(*[st.floats(1e-3, 100)] * 3, st.integers(1, 100), EDGES)
+MATERIAL = st.one_of(*[st.just("m")] * 4, st.sampled_from(["e\u0301", 3, None, ["m"]]))
+
+
+@given(st.lists(st.tuples(st.one_of(*[st.tuples(COORDINATE, COORDINATE, COORDINATE)] * 4,
+                                    st.lists(COORDINATE, max_size=4)), RADIUS, MATERIAL),
+                min_size=1, max_size=6))
+@settings(max_examples=300, deadline=None)
+def test_bulk_construction_is_construction_one_by_one(rows):
+    """Sphere.many's NumPy check may only ever agree with the constructor."""
+    centers, radii, materials = (list(column) for column in zip(*rows))
+    try:
+        expected = [Sphere(c, r, m) for c, r, m in rows]
+    except SceneError:
+        expected = None
+    try:
+        got = Sphere.many(centers, radii, materials)
+    except SceneError as e:
+        assert expected is None
+        i = int(e.path[1:e.path.index("]")])
+        with pytest.raises(SceneError) as single:
+            Sphere(*rows[i])
+        assert e.path == f"[{i}]{'.' if single.value.path[0] != '[' else ''}{single.value.path}"
+        assert e.problem == single.value.problem
+        for row in rows[:i]:
+            Sphere(*row)
+    else:
+        assert got == expected
+        assert [type(x) for s in got for x in (*s.center, s.radius)] == [float] * (4 * len(got))
