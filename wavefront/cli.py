@@ -248,9 +248,10 @@ def _render(args, signals: _Signals, started: float) -> int:
     memory = args.memory or DEFAULT_MEMORY
     try:
         outputs = check_paths(args)
+        _refuse_unless_loading_fits(args.scene, memory)
         scene = load_scene(args.scene)
         scene = _with_flags(scene, args)
-    except (SceneError, OutputError) as e:
+    except (SceneError, OutputError, MemoryBudgetError) as e:
         print(f"wavefront: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     loaded = time.perf_counter()
@@ -325,6 +326,17 @@ def _render(args, signals: _Signals, started: float) -> int:
             client.close()
             if client.cluster is not None:
                 client.cluster.close()
+
+
+def _refuse_unless_loading_fits(path: str, memory: int) -> None:
+    """Refuse a scene file too big to load within the budget, before reading it."""
+    from .render import LOAD_BYTES_PER_FILE_BYTE, refuse_unless_fits
+
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return  # the loader reports it
+    refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * size, f"loading {path} ({size / 2**20:,.0f} MiB)")
 
 
 def _with_flags(scene, args):

@@ -174,6 +174,29 @@ def physical_memory() -> int:
     return total
 
 
+# What loading and compiling a scene take, measured with
+# ``benchmarks/bench.py --section budget`` (200,000 and 1,000,000 spheres):
+# the loader's peak per byte of YAML, and compile's (arrays, BVH) per
+# primitive.  They let a render that cannot fit be refused before the scene
+# is read, not after it has already overrun the budget.
+LOAD_BYTES_PER_FILE_BYTE = 8
+COMPILE_BYTES_PER_PRIMITIVE = 1024
+
+
+def refuse_unless_fits(memory: int, need: int, what: str) -> None:
+    """Raise :class:`MemoryBudgetError` if ``need`` more bytes on top of this
+    process's current memory exceed ``memory``."""
+    total = current_rss() + need
+    if total > memory:
+        raise MemoryBudgetError(f"{what} needs about {total / MiB:,.0f} MiB, more than the memory budget "
+                                f"of {memory / MiB:,.0f} MiB (--memory)")
+
+
+def primitive_count(scene: Scene) -> int:
+    """Primitives the acceleration structure will hold."""
+    return len(scene.spheres)
+
+
 @dataclass(frozen=True)
 class MemoryPlan:
     """How the render fits its budget; all sizes in bytes."""
@@ -449,6 +472,9 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         film, first_unit = load_checkpoint(resume, scene, len(plan))
     else:
         film, first_unit = Film(scene.width, scene.height), 0
+    if compiled is None and executor is None:
+        refuse_unless_fits(memory, COMPILE_BYTES_PER_PRIMITIVE * primitive_count(scene),
+                           f"compiling {primitive_count(scene):,} primitives")
     cs = compiled if compiled is not None or executor is not None else scene.compile()
     requested = max(1, workers if workers is not None else (os.cpu_count() or 1))
     release_free_memory()
