@@ -63,7 +63,8 @@ class Camera:
                                                  low=0.0, low_open=True, high=MAX_COORDINATE))
         forward = [b - a for a, b in zip(self.look_from, self.look_at)]
         if not any(forward):
-            fail(self, "look_at", f"must differ from look_from (both are {list(self.look_from)}): the camera has no view direction")
+            fail(self, "look_at", f"must differ from look_from (both are {list(self.look_from)}): "
+                                  "the camera has no view direction")
         # compare directions at unit scale so huge or tiny vectors neither overflow nor underflow
         f = _unit(forward)
         up = _unit(self.vup) if any(self.vup) else (0.0, 0.0, 0.0)

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .validation import SceneError, fail, integer, name, number, vec3
+from .validation import SceneError, fail, integer, number, vec3
+from .validation import name as material_name
 from .vecmath import dot, gather
 
 T_MIN = 1e-3  # skip self-intersection at the ray's own origin (shadow acne)
@@ -82,7 +83,7 @@ class Sphere:
         if isinstance(self.material, numbers.Integral) and not isinstance(self.material, bool):
             set_field(self, "material", integer(self, self.material, "material", low=0))
         else:
-            set_field(self, "material", name(self, self.material, "material"))
+            set_field(self, "material", material_name(self, self.material, "material"))
 
     @classmethod
     def many(cls, centers, radii, materials) -> list[Sphere]:

@@ -11,6 +11,14 @@ objects a YAML file would::
         camera=Camera(look_from=(0, 0, 0), look_at=(0, 0, -1)),
     )
     image = render(scene)          # (height, width, 3) linear float32
+
+Every object checks its values when it is built (``wavefront.validation``),
+by the same rules a scene file is read with: ``Sphere((0, 0, 0), -1, "m")``
+raises ``SceneError("<Sphere>", "radius", "must be > 0.0, got -1")``, and a
+scene whose sphere names an undefined material raises
+``SceneError("<Scene>", "spheres[3].material", ...)``.  ``replace`` and
+``with_overrides`` build a new scene, so they are checked too.  The limits
+below bound objects, files and command-line flags alike.
 """
 
 from __future__ import annotations
@@ -155,15 +163,16 @@ class Scene:
 
         if not isinstance(self.materials, Mapping):
             fail(self, "materials", f"expected a mapping of names to materials, got {describe(self.materials)}")
-        materials = {}
+        materials, spelled = {}, {}
+        kinds = "a material (" + ", ".join(t.__name__ for t in MATERIAL_TYPES) + ")"
         for key, material in self.materials.items():
             if not isinstance(key, str):
                 fail(self, "materials", f"material names must be strings, got {describe(key)}")
             normal = unicodedata.normalize("NFC", key)
             if normal in materials:
-                fail(self, f"materials.{key}", f"is the same name as {next(k for k in self.materials if k != key and unicodedata.normalize('NFC', k) == normal)!r} in another Unicode form")
-            instance(self, material, f"materials.{key}", MATERIAL_TYPES, "a material (" + ", ".join(t.__name__ for t in MATERIAL_TYPES) + ")")
-            materials[normal] = material
+                fail(self, f"materials.{key}", f"is the same name as {spelled[normal]!r} in another Unicode form")
+            instance(self, material, f"materials.{key}", MATERIAL_TYPES, kinds)
+            materials[normal], spelled[normal] = material, key
         set_field(self, "materials", materials)
 
         spheres = self.spheres

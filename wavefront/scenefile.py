@@ -32,8 +32,8 @@ from itertools import repeat
 from typing import Any
 
 import yaml
-from yaml.events import (AliasEvent, DocumentEndEvent, MappingEndEvent, MappingStartEvent, ScalarEvent,
-                         SequenceEndEvent, SequenceStartEvent, StreamEndEvent)
+from yaml.events import (AliasEvent, DocumentEndEvent, MappingEndEvent, ScalarEvent, SequenceEndEvent,
+                         SequenceStartEvent, StreamEndEvent)
 from yaml.nodes import ScalarNode
 
 from .background import Sky, Solid
@@ -45,7 +45,8 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
 )
 from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
 
-__all__ = ["SceneError", "SceneWarning", "load_scene", "read_yaml", "scene_from_dict"]
+__all__ = ["MAX_DEPTH", "MAX_PIXELS", "MAX_SAMPLES_PER_PIXEL", "MAX_SEED", "SceneError", "SceneWarning",
+           "load_scene", "read_yaml", "scene_from_dict"]
 
 MiB = 1 << 20
 # A million spheres written as make_final_scene.py writes them is ~68 MB and
@@ -374,7 +375,8 @@ def read_yaml(data: bytes, source: str, *, size: int | None = None) -> Any:
     ``MAX_FILE_BYTES + 1`` bytes of it).
     """
     if len(data) > MAX_FILE_BYTES:
-        actual = f"is {_size_text(size)}" if size and size > MAX_FILE_BYTES else f"is larger than {MAX_FILE_BYTES // MiB} MiB"
+        actual = (f"is {_size_text(size)}" if size and size > MAX_FILE_BYTES
+                  else f"is larger than {MAX_FILE_BYTES // MiB} MiB")
         raise SceneError(source, "", f"file {actual}; the limit is {MAX_FILE_BYTES // MiB} MiB "
                                      "(about 2 million spheres)")
     try:
@@ -534,7 +536,8 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
 
     materials_doc = top.get("materials") or {}
     if not isinstance(materials_doc, dict):
-        raise SceneError(source, "materials", f"expected a mapping of names to materials, got {describe(materials_doc)}")
+        raise SceneError(source, "materials",
+                         f"expected a mapping of names to materials, got {describe(materials_doc)}")
     materials = {}
     for key, spec in materials_doc.items():
         if not isinstance(key, str):
