@@ -159,12 +159,12 @@ def _integer(text: str) -> int:
 
 
 def _float(text: str) -> float:
-    lowered = text.lower()
-    if lowered.endswith(".inf"):
-        return -math.inf if text.startswith("-") else math.inf
-    if lowered == ".nan":
-        return math.nan
-    return float(text)
+    try:
+        return float(text)  # every YAML 1.2 float but the spellings below
+    except ValueError:
+        if text.lower().endswith(".inf"):
+            return -math.inf if text.startswith("-") else math.inf
+        return math.nan  # .nan, .NaN, .NAN
 
 
 _CONSTRUCT = {
@@ -192,6 +192,7 @@ class _Problem(Exception):
 
 
 _MISSING = object()
+_PLAIN = (True, False)  # the ``implicit`` of a plain scalar without a tag
 _CACHE_LIMIT = 1 << 16  # plain scalars remembered (keys, repeated values); random coordinates are not
 
 
@@ -265,7 +266,10 @@ class _Builder:
         if tag is None and event.implicit[0]:  # plain: typed by the resolver
             value = self.cache.get(text, _MISSING)
             if value is _MISSING:
-                value = self.construct(self.resolve(ScalarNode, text, (True, False)), text, event)
+                try:  # every tag the resolver gives has a constructor
+                    value = _CONSTRUCT[self.resolve(ScalarNode, text, _PLAIN)](text)
+                except ValueError as e:  # an integer of more than 4300 digits
+                    raise _Problem(f"cannot read {text[:40]!r}: {e}", event.start_mark) from None
                 if len(self.cache) < _CACHE_LIMIT:
                     self.cache[text] = value
         elif tag is None or tag == "!":  # quoted, or the non-specific tag: text
@@ -277,16 +281,16 @@ class _Builder:
         return value
 
     def construct(self, tag: str, text: str, event) -> Any:
+        """A scalar with an explicit tag (``!!float 1``): the text must be one the tag's type reads."""
         make = _CONSTRUCT.get(tag)
-        if make is None:
+        if make is None or tag == _YAML11:
             raise _Problem(f"unsupported tag {tag!r}", event.start_mark)
-        if tag != _TAG + "str" and event.implicit == (False, False):  # explicit !!int etc.: check the text
-            if tag != self.resolve(ScalarNode, text, (True, False)) and not (
-                    tag == _TAG + "float" and self.resolve(ScalarNode, text, (True, False)) == _TAG + "int"):
-                raise _Problem(f"{text!r} is not a valid {tag.removeprefix(_TAG)}", event.start_mark)
+        implicit = self.resolve(ScalarNode, text, _PLAIN)
+        if tag != _TAG + "str" and tag != implicit and not (tag == _TAG + "float" and implicit == _TAG + "int"):
+            raise _Problem(f"{text!r} is not a valid {tag.removeprefix(_TAG)}", event.start_mark)
         try:
             return make(text)
-        except ValueError as e:  # e.g. an integer of more than 4300 digits
+        except ValueError as e:  # an integer of more than 4300 digits
             raise _Problem(f"cannot read {text[:40]!r}: {e}", event.start_mark) from None
 
     def sequence(self, depth: int) -> list:
