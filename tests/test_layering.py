@@ -7,7 +7,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "wavefront"
 
 # Lowest first.  A module may import from its own layer or any layer below.
 LAYERS = [
-    {"vecmath", "sampling"},
+    {"vecmath", "sampling", "validation"},
     {"geometry", "camera", "materials", "background", "batch", "units", "output"},
     {"film"},
     {"bvh", "accel"},
@@ -24,8 +24,10 @@ LAYER = {name: i for i, layer in enumerate(LAYERS) for name in layer}
 def imports_of(path: Path) -> set[str]:
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.level == 1:
-            found.add((node.module or "__init__").split(".")[0])
+        if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module is None:
+            found.update(alias.name for alias in node.names)  # from . import distributed
+        elif isinstance(node, ast.ImportFrom) and node.level == 1:
+            found.add(node.module.split(".")[0])
         elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("wavefront"):
             found.add(node.module.split(".")[1] if "." in node.module else "__init__")
     return found
