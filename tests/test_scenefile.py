@@ -289,3 +289,13 @@ def test_far_camera_close_target_is_judged_by_precision_not_called_equal():
         scene_from_dict(farther, source="c.yaml")
     assert str(e.value).startswith("c.yaml: camera.look_at: the view cannot be resolved in float64")
     assert "equal" not in str(e.value) and "0.125 apart" in str(e.value)
+
+
+def test_the_number_of_values_is_bounded_apart_from_aliases(monkeypatch):
+    """Bytes alone do not bound memory: "[[], [], ...]" costs ~20 times its size in Python objects."""
+    from wavefront import scenefile
+    monkeypatch.setattr(scenefile, "MAX_VALUES", 1000)
+    assert len(read_yaml(b"[" + b"[], " * 400 + b"]", "v.yaml")) == 400
+    with pytest.raises(SceneError) as e:
+        read_yaml(b"[" + b"[], " * 1200 + b"]", "v.yaml")
+    assert "more than 1000 values" in str(e.value) and "alias" not in str(e.value)

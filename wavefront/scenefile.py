@@ -53,6 +53,10 @@ MiB = 1 << 20
 # loads in ~10 s and ~0.7 GiB; the limit leaves room for about twice that.
 MAX_FILE_BYTES = 128 * MiB
 MAX_ALIAS_VALUES = 2_000_000  # values that aliases may add by expansion ("billion laughs" guard)
+# Values (keys, scalars, lists, mappings) the document itself may hold: bounds
+# memory where bytes alone do not (``[[], [], ...]`` is ~60 bytes of Python
+# per 3 bytes of file).  A million spheres are ~11 million values.
+MAX_VALUES = 16_000_000
 MAX_NESTING = 64  # no valid scene nests deeper than ~4
 MAX_NODES = MAX_ALIAS_VALUES  # the old name of the alias limit
 
@@ -212,6 +216,7 @@ class _Builder:
         self.anchored_sizes: dict[int, int] = {}  # id(anchored collection) -> expanded size
         self.open_anchors: set[str] = set()
         self.aliased = 0
+        self.values = 0  # in collections that are complete, counted at their end (not per value: speed)
         self.cache: dict[str, Any] = {}
 
     def document(self) -> Any:
@@ -247,6 +252,12 @@ class _Builder:
             self.anchors[anchor] = (value, size)
             self.anchored_sizes[id(value)] = size  # the value stays alive in anchors: its id is stable
         return value
+
+    def count(self, values: int, event) -> None:
+        self.values += values + 1
+        if self.values > MAX_VALUES:
+            raise _Problem(f"the document holds more than {MAX_VALUES} values (a million spheres are about "
+                           "11 million); the limit bounds the memory a scene file can take", event.start_mark)
 
     def alias(self, event) -> Any:
         name = event.anchor
@@ -306,6 +317,7 @@ class _Builder:
                         and event.implicit[0] else _MISSING
                     append(scalar(event) if value is _MISSING else value)
                 elif kind is SequenceEndEvent:
+                    self.count(len(items), event)
                     return items
                 else:
                     append(self.value(event, depth + 1))
@@ -322,6 +334,7 @@ class _Builder:
                 event = get()
                 kind = type(event)
                 if kind is MappingEndEvent:
+                    self.count(2 * len(items), event)
                     return items
                 key = _MISSING
                 if kind is ScalarEvent:
@@ -382,7 +395,7 @@ def read_yaml(data: bytes, source: str, *, size: int | None = None) -> Any:
         actual = (f"is {_size_text(size)}" if size and size > MAX_FILE_BYTES
                   else f"is larger than {MAX_FILE_BYTES // MiB} MiB")
         raise SceneError(source, "", f"file {actual}; the limit is {MAX_FILE_BYTES // MiB} MiB "
-                                     "(about 2 million spheres)")
+                                     "(about 1.9 million spheres as make_final_scene.py writes them)")
     try:
         data.decode("utf-8")  # libyaml reads bytes itself; this only finds a bad byte early, with its offset
     except UnicodeDecodeError as e:
