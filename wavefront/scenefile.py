@@ -50,7 +50,8 @@ __all__ = ["MAX_DEPTH", "MAX_PIXELS", "MAX_SAMPLES_PER_PIXEL", "MAX_SEED", "Scen
 
 MiB = 1 << 20
 # A million spheres written as make_final_scene.py writes them is ~68 MB and
-# loads in ~10 s and ~0.7 GiB; the limit leaves room for about twice that.
+# loads in ~14 s and ~520 MiB (benchmarks/scene_loading.py); MAX_VALUES below
+# stops a file at ~1.45 million spheres, this at ~1.9 million.
 MAX_FILE_BYTES = 128 * MiB
 MAX_ALIAS_VALUES = 2_000_000  # values that aliases may add by expansion ("billion laughs" guard)
 # Values (keys, scalars, lists, mappings) the document itself may hold: bounds
@@ -394,8 +395,7 @@ def read_yaml(data: bytes, source: str, *, size: int | None = None) -> Any:
     if len(data) > MAX_FILE_BYTES:
         actual = (f"is {_size_text(size)}" if size and size > MAX_FILE_BYTES
                   else f"is larger than {MAX_FILE_BYTES // MiB} MiB")
-        raise SceneError(source, "", f"file {actual}; the limit is {MAX_FILE_BYTES // MiB} MiB "
-                                     "(about 1.9 million spheres as make_final_scene.py writes them)")
+        raise SceneError(source, "", f"file {actual}; the limit is {MAX_FILE_BYTES // MiB} MiB")
     try:
         data.decode("utf-8")  # libyaml reads bytes itself; this only finds a bad byte early, with its offset
     except UnicodeDecodeError as e:
@@ -438,8 +438,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
             except OSError:
                 size = None
             if size and size > MAX_FILE_BYTES:  # refuse before reading a huge file
-                raise SceneError(source, "", f"file is {_size_text(size)}; the limit is "
-                                             f"{MAX_FILE_BYTES // MiB} MiB (about 2 million spheres)")
+                raise SceneError(source, "", f"file is {_size_text(size)}; the limit is {MAX_FILE_BYTES // MiB} MiB")
             data = f.read(MAX_FILE_BYTES + 1)
     except OSError as e:
         raise SceneError(source, "", f"cannot read: {e.strerror or e}") from None
