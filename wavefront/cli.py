@@ -36,10 +36,10 @@ class Interrupted(KeyboardInterrupt):
 
 
 def _limits():
-    """The module holding the scene's limits, which flags share."""
-    from . import scene, scenefile
+    """The scene's limits, which flags share."""
+    from . import scene
 
-    return scene if hasattr(scene, "MAX_DEPTH") else scenefile
+    return scene
 
 
 def _integer(text: str, low: int, high: int, what: str) -> int:
@@ -61,7 +61,8 @@ def _spp(text: str) -> int:
 
 
 def _depth(text: str) -> int:
-    return _integer(text, 1, _limits().MAX_DEPTH, "a positive integer")
+    # 0 is whitted's "no reflections"; the path integrator refuses it with the scene's own message
+    return _integer(text, 0, _limits().MAX_DEPTH, "a non-negative integer")
 
 
 def _positive_int(text: str) -> int:
@@ -112,8 +113,15 @@ def _version() -> str:
         return "unknown"
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad argument is one line (the usage block is in --help)."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="wavefront", description="A NumPy wavefront path tracer.")
+    parser = _Parser(prog="wavefront", description="A NumPy wavefront path tracer.")
     parser.add_argument("--version", action="version", version=f"wavefront {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render a YAML scene to PNG, EXR or NPY")
@@ -339,18 +347,23 @@ def _refuse_unless_loading_fits(path: str, memory: int) -> None:
     refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * size, f"loading {path} ({size / 2**20:,.0f} MiB)")
 
 
+_FLAG_OF = {"width": "--width", "height": "--height", "render.samples_per_pixel": "--spp",
+            "render.max_depth": "--max-depth", "render.seed": "--seed"}
+
+
 def _with_flags(scene, args):
     """The scene with the command line's overrides, under the scene file's
-    own limits; a violation names the flags, not a YAML path."""
+    own limits; a violation names the flag, not a YAML path."""
     from .scenefile import SceneError
 
     try:
         return scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
                                     max_depth=args.max_depth, seed=args.seed)
     except SceneError as e:
-        flags = " ".join(f"--{name.replace('_', '-')} {value}" for name, value in vars(args).items()
-                         if name in ("width", "height", "spp", "max_depth", "seed") and value is not None)
-        raise SceneError(args.scene, f"with {flags}", getattr(e, "problem", str(e))) from None
+        flag = _FLAG_OF.get(e.path)
+        if flag is None:  # the pixel count: whichever size flags were given
+            flag = " ".join(f for f, v in (("--width", args.width), ("--height", args.height)) if v is not None)
+        raise SceneError(args.scene, flag or "image", e.problem) from None
 
 
 def _write_or_rescue(out: str, film, metadata) -> str | None:
