@@ -24,7 +24,8 @@ import numpy as np
 
 from .film import Job, Unit, plan_units
 from .output import publish
-from .path import TraceStats, trace_paths
+from .integrators import TRACERS
+from .path import TraceStats
 from .sampling import scene_key
 from .scene import CompiledScene, Scene
 
@@ -153,12 +154,7 @@ def execute(cs: CompiledScene, key, capacity: int, units: list[Unit], should_sto
     # Overflow and NaN are handled by the film (non-finite samples are dropped
     # and counted in the summary), so NumPy's warnings about them are noise.
     with np.errstate(over="ignore", invalid="ignore"):
-        if scene.render.integrator == "whitted":
-            from .whitted import trace_whitted
-
-            radiance = trace_whitted(cs, job, key, capacity, stats, should_stop)
-        else:
-            radiance = trace_paths(cs, job, key, capacity, stats, should_stop)
+        radiance = TRACERS[scene.render.integrator](cs, job, key, capacity, stats, should_stop)
     if should_stop is not None and should_stop():
         raise RenderInterrupted  # the trace was cut short: this task's samples are incomplete
     return job.reduce(radiance), stats, (os.getpid(), _peak_rss())
