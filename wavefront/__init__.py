@@ -1,4 +1,4 @@
-"""wavefront: a readable, tested NumPy wavefront path tracer for spheres.
+"""wavefront: a readable, tested NumPy wavefront path tracer for spheres, quads, boxes, triangles and meshes.
 
 >>> from wavefront import load_scene, render
 >>> image = render(load_scene("scenes/three_spheres.yaml"))  # (H, W, 3) linear float32
@@ -11,9 +11,11 @@ from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
 from .render import RenderResult, render, render_scene
 from .scene import PointLight, RenderSettings, Scene
 from .scenefile import SceneError, SceneWarning, load_scene, scene_from_dict
+from .shapes import Mesh, Quad, Triangle, box_quads
+from .transform import Transform
 
 __all__ = [
-    "Camera", "Dielectric", "Emissive", "Lambertian", "Metal", "Phong", "PointLight",
+    "Camera", "Dielectric", "Emissive", "Lambertian", "Mesh", "Metal", "Phong", "PointLight", "Quad",
     "RenderResult", "RenderSettings", "Scene", "SceneError", "SceneWarning", "Sky", "Solid",
-    "Sphere", "load_scene", "render", "render_scene", "scene_from_dict",
+    "Sphere", "Transform", "Triangle", "box_quads", "load_scene", "render", "render_scene", "scene_from_dict",
 ]

@@ -21,6 +21,9 @@ from .camera import Camera
 from .geometry import Sphere
 from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
 from .scene import INTEGRATORS, PRECISIONS, PointLight, RenderSettings, Scene
+from .shapes import Mesh, MeshError, Quad, Triangle, box_quads, read_mesh
+from .shapes.mesh import MAX_MESH_FACES
+from .transform import Transform
 
 MAX_FILE_BYTES = 16 * 1024 * 1024  # a scene of a million spheres is ~60 MB; refuse more than a sane hand/script file
 MAX_NODES = 2_000_000  # YAML nodes after alias expansion ("billion laughs" guard)
@@ -273,7 +276,7 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
     """Validate a parsed scene document and build the :class:`Scene`."""
     r = _Reader(source)
     top = r.mapping(doc, "", {"name", "image", "camera", "render", "background", "materials",
-                              "spheres", "lights", "ambient"}, {"spheres"})
+                              "spheres", "lights", "ambient", "quads", "boxes", "triangles", "meshes"})
 
     name = r.string(top["name"], "name") if "name" in top else default_name
 
@@ -306,24 +309,12 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
             r.fail("materials", f"material names must be strings, got {_describe(key)}")
         materials[key] = _material(r, spec, f"materials.{key}")
 
-    spheres_doc = top["spheres"]
-    if spheres_doc is None:
-        spheres_doc = []
-    if not isinstance(spheres_doc, list):
-        r.fail("spheres", f"expected a list, got {_describe(spheres_doc)}")
-    spheres = []
-    for i, spec in enumerate(spheres_doc):
-        path = f"spheres[{i}]"
-        spec = r.mapping(spec, path, {"center", "radius", "material"}, {"center", "radius", "material"})
-        material = r.string(spec["material"], f"{path}.material")
-        if material not in materials:
-            known = ", ".join(sorted(materials)) or "none"
-            r.fail(f"{path}.material", f"unknown material {material!r} (defined: {known})")
-        spheres.append(Sphere(
-            center=r.vec3(spec["center"], f"{path}.center"),
-            radius=r.number(spec["radius"], f"{path}.radius", low=0.0, low_open=True),
-            material=material,
-        ))
+    spheres = _spheres(r, top.get("spheres"), materials)
+    quads = _quads(r, top.get("quads"), materials) + _boxes(r, top.get("boxes"), materials)
+    triangles = _triangles(r, top.get("triangles"), materials)
+    meshes = _meshes(r, top.get("meshes"), materials)
+    if not (spheres or quads or triangles or meshes):
+        r.fail("", "the scene has no shapes (give at least one of: spheres, quads, boxes, triangles, meshes)")
 
     lights_doc = top.get("lights") or []
     if not isinstance(lights_doc, list):
@@ -341,10 +332,11 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
 
     if integrator == "path" and (lights or "ambient" in top):
         warnings.warn(f"{source}: lights/ambient are ignored by the path integrator "
-                      "(it is lit by emissive spheres and the background)", SceneWarning, stacklevel=2)
+                      "(it is lit by emissive shapes and the background)", SceneWarning, stacklevel=2)
 
     return Scene(spheres=spheres, materials=materials, camera=camera, width=width, height=height,
-                 render=settings, background=background, lights=tuple(lights), ambient=ambient, name=name)
+                 render=settings, background=background, lights=tuple(lights), ambient=ambient, name=name,
+                 quads=quads, triangles=triangles, meshes=meshes)
 
 
 def _camera(r: _Reader, value) -> Camera:
@@ -386,3 +378,157 @@ def _background(r: _Reader, value):
         )
     r.mapping(spec, "background", {"type", "color"})
     return Solid(color=r.color(spec["color"], "background.color") if "color" in spec else (0.0, 0.0, 0.0))
+
+
+# ---------------------------------------------------------------------------
+# Shapes and their transforms
+
+def _shape_list(r: _Reader, value, key: str) -> list:
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        r.fail(key, f"expected a list, got {_describe(value)}")
+    return value
+
+
+def _shape_material(r: _Reader, spec: dict, path: str, materials: dict) -> str:
+    material = r.string(spec["material"], f"{path}.material")
+    if material not in materials:
+        known = ", ".join(sorted(materials)) or "none"
+        r.fail(f"{path}.material", f"unknown material {material!r} (defined: {known})")
+    return material
+
+
+def _transform(r: _Reader, value, path: str, *, similarity_only: bool = False) -> Transform | None:
+    """A ``transform`` list, first step applied first: ``{translate: [x, y, z]}``,
+    ``{rotate: {axis: [x, y, z], angle: degrees}}``, ``{scale: s}`` or
+    ``{scale: [sx, sy, sz]}``.  ``similarity_only`` (spheres) refuses
+    non-uniform scales, the only step that could make a sphere an ellipsoid."""
+    if value is None:
+        return None
+    if not isinstance(value, list):
+        r.fail(path, f"expected a list of steps (translate, rotate, scale), got {_describe(value)}")
+    total = Transform()
+    for i, step in enumerate(value):
+        here = f"{path}[{i}]"
+        step = r.mapping(step, here, {"translate", "rotate", "scale"})
+        if len(step) != 1:
+            r.fail(here, "each step has exactly one of: translate, rotate, scale")
+        (kind, arg), = step.items()
+        where = f"{here}.{kind}"
+        if kind == "translate":
+            total = total.then(Transform.translate(r.vec3(arg, where)))
+        elif kind == "rotate":
+            spec = r.mapping(arg, where, {"axis", "angle"}, {"axis", "angle"})
+            axis = r.vec3(spec["axis"], f"{where}.axis")
+            if math.hypot(*axis) == 0.0 or not math.isfinite(math.hypot(*axis)):
+                r.fail(f"{where}.axis", "must not be zero")
+            total = total.then(Transform.rotate(axis, r.number(spec["angle"], f"{where}.angle")))
+        else:
+            factor = r.vec3(arg, where) if isinstance(arg, (list, tuple)) else (r.number(arg, where),) * 3
+            if 0.0 in factor:
+                r.fail(where, "must not be zero (it would flatten the shape)")
+            if similarity_only and not (factor[0] == factor[1] == factor[2]):
+                r.fail(where, "a sphere can only be scaled uniformly (translate, rotate and uniform scale only)")
+            total = total.then(Transform.scale(factor))
+    if not all(math.isfinite(x) for row in total.matrix for x in row):
+        r.fail(path, "the transform overflows")
+    return total
+
+
+def _spheres(r: _Reader, value, materials: dict) -> list[Sphere]:
+    spheres = []
+    for i, spec in enumerate(_shape_list(r, value, "spheres")):
+        path = f"spheres[{i}]"
+        spec = r.mapping(spec, path, {"center", "radius", "material", "transform"}, {"center", "radius", "material"})
+        material = _shape_material(r, spec, path, materials)
+        spheres.append(Sphere(
+            center=r.vec3(spec["center"], f"{path}.center"),
+            radius=r.number(spec["radius"], f"{path}.radius", low=0.0, low_open=True),
+            material=material,
+            transform=_transform(r, spec.get("transform"), f"{path}.transform", similarity_only=True),
+        ))
+    return spheres
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _quads(r: _Reader, value, materials: dict) -> list[Quad]:
+    quads = []
+    for i, spec in enumerate(_shape_list(r, value, "quads")):
+        path = f"quads[{i}]"
+        spec = r.mapping(spec, path, {"corner", "u", "v", "material", "transform"}, {"corner", "u", "v", "material"})
+        material = _shape_material(r, spec, path, materials)
+        corner, u, v = (r.vec3(spec[k], f"{path}.{k}") for k in ("corner", "u", "v"))
+        area = math.hypot(*_cross(u, v))
+        if not area > 1e-12 * math.hypot(*u) * math.hypot(*v) or not math.isfinite(area):
+            r.fail(path, "degenerate quad: u and v are parallel (or zero)")
+        quads.append(Quad(corner, u, v, material, _transform(r, spec.get("transform"), f"{path}.transform")))
+    return quads
+
+
+def _boxes(r: _Reader, value, materials: dict) -> list[Quad]:
+    quads = []
+    for i, spec in enumerate(_shape_list(r, value, "boxes")):
+        path = f"boxes[{i}]"
+        spec = r.mapping(spec, path, {"min", "max", "material", "transform"}, {"min", "max", "material"})
+        material = _shape_material(r, spec, path, materials)
+        lo, hi = r.vec3(spec["min"], f"{path}.min"), r.vec3(spec["max"], f"{path}.max")
+        if not all(a < b for a, b in zip(lo, hi)):
+            r.fail(f"{path}.max", f"must exceed min on every axis (min {list(lo)}, max {list(hi)})")
+        quads.extend(box_quads(lo, hi, material, _transform(r, spec.get("transform"), f"{path}.transform")))
+    return quads
+
+
+def _triangles(r: _Reader, value, materials: dict) -> list[Triangle]:
+    triangles = []
+    for i, spec in enumerate(_shape_list(r, value, "triangles")):
+        path = f"triangles[{i}]"
+        spec = r.mapping(spec, path, {"vertices", "material", "transform"}, {"vertices", "material"})
+        material = _shape_material(r, spec, path, materials)
+        vertices = spec["vertices"]
+        if not isinstance(vertices, list) or len(vertices) != 3:
+            r.fail(f"{path}.vertices", f"expected a list of 3 points, got {_describe(vertices)}")
+        v0, v1, v2 = (r.vec3(p, f"{path}.vertices[{k}]") for k, p in enumerate(vertices))
+        e1 = tuple(b - a for a, b in zip(v0, v1))
+        e2 = tuple(b - a for a, b in zip(v0, v2))
+        area = math.hypot(*_cross(e1, e2))
+        if not area > 1e-12 * math.hypot(*e1) * math.hypot(*e2) or not math.isfinite(area):
+            r.fail(f"{path}.vertices", "zero-area triangle (its vertices are collinear or repeated)")
+        triangles.append(Triangle((v0, v1, v2), material, _transform(r, spec.get("transform"), f"{path}.transform")))
+    return triangles
+
+
+def _meshes(r: _Reader, value, materials: dict) -> list[Mesh]:
+    """Meshes read from files (by trimesh), paths relative to the scene file.
+
+    Every problem with a file names the scene file, the YAML path and the
+    mesh file; degenerate faces are dropped with one warning counting them.
+    """
+    meshes = []
+    base = "" if r.source.startswith("<") else os.path.dirname(r.source)
+    total = 0
+    for i, spec in enumerate(_shape_list(r, value, "meshes")):
+        path = f"meshes[{i}]"
+        spec = r.mapping(spec, path, {"file", "material", "smooth", "transform"}, {"file", "material"})
+        material = _shape_material(r, spec, path, materials)
+        smooth = spec.get("smooth", False)
+        if not isinstance(smooth, bool):
+            r.fail(f"{path}.smooth", f"expected true or false, got {_describe(smooth)}")
+        transform = _transform(r, spec.get("transform"), f"{path}.transform")
+        name = r.string(spec["file"], f"{path}.file")
+        file = os.path.join(base, name)
+        try:
+            data = read_mesh(file, max_faces=MAX_MESH_FACES - total)
+        except MeshError as e:
+            r.fail(f"{path}.file", f"{file}: {e}")
+        total += data["faces"].shape[0]
+        if data["dropped"]:
+            warnings.warn(f"{r.source}: {path}.file: {file}: dropped {data['dropped']} degenerate (zero-area) "
+                          "triangles", SceneWarning, stacklevel=3)
+        meshes.append(Mesh(vertices=data["vertices"], faces=data["faces"], material=material, smooth=smooth,
+                           transform=transform, vertex_normals=data["vertex_normals"], uv=data["uv"], file=file,
+                           dropped=data["dropped"]))
+    return meshes
