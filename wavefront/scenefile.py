@@ -22,7 +22,7 @@ from .geometry import Sphere
 from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
 from .scene import INTEGRATORS, PRECISIONS, PointLight, RenderSettings, Scene
 from .shapes import Mesh, MeshError, Quad, Triangle, box_quads, read_mesh
-from .shapes.mesh import MAX_MESH_FACES
+from .shapes import mesh as mesh_files
 from .transform import Transform
 
 MAX_FILE_BYTES = 16 * 1024 * 1024  # a scene of a million spheres is ~60 MB; refuse more than a sane hand/script file
@@ -521,7 +521,7 @@ def _meshes(r: _Reader, value, materials: dict) -> list[Mesh]:
         name = r.string(spec["file"], f"{path}.file")
         file = os.path.join(base, name)
         try:
-            data = read_mesh(file, max_faces=MAX_MESH_FACES - total)
+            data = read_mesh(file, max_faces=mesh_files.MAX_MESH_FACES - total)  # the limit is for the scene
         except MeshError as e:
             r.fail(f"{path}.file", f"{file}: {e}")
         total += data["faces"].shape[0]

@@ -66,7 +66,7 @@ def _check_ply_header(head: bytes, max_faces: int) -> None:
                             f"the limit is {3 * max_faces}")
 
 
-def read_mesh(path: str, *, max_bytes: int = MAX_MESH_BYTES, max_faces: int = MAX_MESH_FACES) -> dict:
+def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None = None) -> dict:
     """Read a mesh file into plain arrays, bounded and checked.
 
     Returns
@@ -81,6 +81,8 @@ def read_mesh(path: str, *, max_bytes: int = MAX_MESH_BYTES, max_faces: int = MA
     """
     import trimesh  # the standard Python mesh reader; imported only when a scene has meshes
 
+    max_bytes = MAX_MESH_BYTES if max_bytes is None else max_bytes
+    max_faces = MAX_MESH_FACES if max_faces is None else max_faces
     ext = os.path.splitext(path)[1].lower().lstrip(".")
     if ext not in FORMATS:
         raise MeshError(f"unknown mesh format {ext!r} (expected one of: {', '.join(FORMATS)})")
