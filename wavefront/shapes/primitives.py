@@ -137,7 +137,6 @@ class Primitives:
         ``uv`` computes surface coordinates too (nothing reads them yet, and
         for spheres they cost two transcendental functions per hit).
         """
-        idx = np.asarray(idx, dtype=np.int64)
         if len(self.kinds) == 1:
             point, outward, shading, coords = self.kinds[0].surface(idx, origin, direction, t, uv)
         else:
@@ -162,4 +161,4 @@ class Primitives:
         geometric = outward * sign
         normal = geometric if shading is outward else shading * sign
         return SurfaceHits(point=point, normal=normal, geometric_normal=geometric, front_face=front_face,
-                           material_idx=self.material_idx.take(idx), primitive_idx=idx.astype(np.int32), uv=coords)
+                           material_idx=self.material_idx.take(idx), primitive_idx=idx, uv=coords)
