@@ -250,3 +250,12 @@ def test_box_of_twelve_triangles_renders_as_six_quads(box_scenes):
     bad, worst = z_rejected(estimate(box_scenes["big"], 300), quads)
     assert bad, f"largest |z| = {worst:.2f}"
 
+
+
+def test_mesh_scene_image_does_not_depend_on_workers_or_chunk_size():
+    from .test_furnace import SCENES
+
+    scene = load_scene(SCENES / "mesh.yaml").with_overrides(width=48, samples_per_pixel=3)
+    reference = render(scene, workers=1)
+    np.testing.assert_array_equal(render(scene, workers=2), reference)
+    np.testing.assert_array_equal(render(scene, workers=1, chunk_size=300), reference)

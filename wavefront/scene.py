@@ -25,7 +25,7 @@ from .background import Background, Sky
 from .camera import Camera
 from .geometry import Sphere, precision_for
 from .materials import Material, MaterialTable
-from .shapes import Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
+from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
 
 RGB = tuple[float, float, float]
@@ -147,7 +147,7 @@ class CompiledScene:
     """The scene as arrays for the kernels; built once per render."""
 
     scene: Scene
-    shapes: Primitives  # or the BVH over them: both answer intersect, occluded and surface
+    shapes: Intersector  # the Primitives (brute force) or the BVH over them
     materials: MaterialTable
     light_position: np.ndarray  # (3, L)
     light_color: np.ndarray  # (3, L)

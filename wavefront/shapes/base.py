@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -58,6 +59,22 @@ class SurfaceHits:
 
     def __len__(self) -> int:
         return self.front_face.shape[0]
+
+
+class Intersector(Protocol):
+    """What the integrators ask of a scene's geometry: brute force
+    (:class:`~wavefront.shapes.Primitives`) and the BVH both answer it, alike."""
+
+    material_idx: np.ndarray  # (M,) per primitive
+
+    def intersect(self, origin, direction, t_max=np.inf) -> Hits:
+        """Nearest hit with ``T_MIN < t < t_max`` per ray."""
+
+    def occluded(self, origin, direction, t_max) -> np.ndarray:
+        """Whether any hit has ``T_MIN < t < t_max`` (shadow rays)."""
+
+    def surface(self, origin, direction, t, idx, uv: bool = False) -> SurfaceHits:
+        """What the hitting rays hit."""
 
 
 class ShapeKind:
