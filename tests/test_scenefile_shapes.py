@@ -204,3 +204,9 @@ def test_cornell_box_is_the_books():
     assert normal[1] < 0 and normal[0] == normal[2] == 0  # shines down into the room
     assert len(scene.quads) == 5 + 1 + 12
     assert math.isclose(scene.materials["light"].color[0], 15)
+
+
+def test_an_obj_with_too_many_faces_is_refused_before_parsing(tmp_path, monkeypatch):
+    monkeypatch.setattr(mesh_files, "MAX_MESH_FACES", 5)
+    data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 6
+    assert "has more than 5 faces" in refused(mesh_scene(tmp_path, "many.obj", data=data))

@@ -100,6 +100,8 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         raise MeshError("the file is empty")
     if ext == "ply":
         _check_ply_header(data[:65536], max_faces)
+    elif ext == "obj" and data.count(b"\nf ") > max_faces:  # a face a line: counted before trimesh builds them
+        raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
     try:
         mesh = trimesh.load(io.BytesIO(data), file_type=ext, force="mesh", process=False)
         vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
