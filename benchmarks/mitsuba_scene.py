@@ -1,12 +1,16 @@
 """Build the Mitsuba 3 equivalent of a wavefront scene, for timing side by side.
 
-The translation keeps the work the same: the same spheres, camera (a thin lens
+The translation keeps the work the same: the same shapes (spheres; quads and
+boxes' faces as ``rectangle`` shapes; triangles and meshes as ``ply`` files
+written in world space), camera (a thin lens
 when there is defocus), image size, samples per pixel and maximum path
 length, a box pixel filter, and the ``path`` integrator.  The sky gradient
 becomes a latitude-longitude environment bitmap.  Materials map to their
 nearest Mitsuba plugin: lambertian -> ``diffuse``, metal -> ``conductor``
 (fuzz 0) or ``roughconductor`` with ``alpha = fuzz`` (the lobes differ; fine
-for timing), dielectric -> ``dielectric``, emissive -> an ``area`` emitter.
+for timing), dielectric -> ``dielectric``, emissive -> an ``area`` emitter,
+which in Mitsuba as in wavefront emits on the front side only (a rectangle's
+normal is mapped to ``cross(u, v)``).
 """
 
 from __future__ import annotations
@@ -27,10 +31,11 @@ def sky_bitmap(background, height=64):
     return np.repeat(rows[:, None, :], 2 * height, axis=1).astype(np.float32)
 
 
-def mitsuba_scene_dict(scene, mi, russian_roulette=True):
+def mitsuba_scene_dict(scene, mi, russian_roulette=True, workdir="."):
     """Mitsuba's dict for a wavefront scene.  ``russian_roulette=False`` sets
     ``rr_depth`` past ``max_depth``: Mitsuba's default ends paths at random from
-    depth 5 on, wavefront (like the books) only at ``max_depth``."""
+    depth 5 on, wavefront (like the books) only at ``max_depth``.  Triangles
+    and meshes are written to PLY files in ``workdir``."""
     cam = scene.camera
     look_from = np.asarray(cam.look_from, dtype=float)
     look_at = np.asarray(cam.look_at, dtype=float)
@@ -57,10 +62,10 @@ def mitsuba_scene_dict(scene, mi, russian_roulette=True):
         doc["sky"] = {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap(bg))}
     else:
         doc["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": list(bg.color)}}
-    for i, sphere in enumerate(scene.spheres):
-        m = scene.materials[sphere.material]
-        shape = {"type": "sphere", "center": list(sphere.center), "radius": sphere.radius}
-        rgb = lambda v: {"type": "rgb", "value": list(v)}  # noqa: E731
+    rgb = lambda v: {"type": "rgb", "value": list(v)}  # noqa: E731
+
+    def material(name, shape):
+        m = scene.materials[name]
         if m.kind in ("lambertian", "phong"):
             shape["bsdf"] = {"type": "diffuse", "reflectance": rgb(m.albedo if m.kind == "lambertian" else m.diffuse)}
         elif m.kind == "metal":
@@ -73,5 +78,59 @@ def mitsuba_scene_dict(scene, mi, russian_roulette=True):
         else:
             shape["bsdf"] = {"type": "diffuse", "reflectance": rgb((0, 0, 0))}
             shape["emitter"] = {"type": "area", "radiance": rgb(m.color)}
-        doc[f"sphere{i}"] = shape
+        return shape
+
+    from wavefront.shapes.sphere import world_sphere
+
+    for i, sphere in enumerate(scene.spheres):
+        center, radius = world_sphere(sphere)
+        doc[f"sphere{i}"] = material(sphere.material, {"type": "sphere", "center": center.tolist(), "radius": radius})
+    for i, quad in enumerate(scene.quads):
+        doc[f"quad{i}"] = material(quad.material, {"type": "rectangle", "to_world": rectangle_to_world(quad, mi)})
+    for i, (name, path, smooth) in enumerate(triangle_files(scene, workdir)):
+        doc[f"mesh{i}"] = material(name, {"type": "ply", "filename": path, "face_normals": not smooth})
     return doc
+
+
+def rectangle_to_world(quad, mi):
+    """Mitsuba's rectangle is [-1, 1]^2 in the xy plane facing +z: map it onto
+    ``corner + a u + b v`` with +z onto ``cross(u, v)``, the quad's front."""
+    corner, u, v = quad.world()
+    n = np.cross(u, v)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = u / 2, v / 2, n / np.linalg.norm(n)
+    m[:3, 3] = corner + u / 2 + v / 2
+    return mi.ScalarTransform4f(m.tolist())
+
+
+def triangle_files(scene, workdir):
+    """World-space PLY files (written by trimesh) for the loose triangles, one
+    per material, and for each mesh: ``[(material, path, smooth)]``."""
+    import os
+
+    import trimesh
+
+    from wavefront.shapes import mesh_triangles
+
+    out = []
+    by_material = {}
+    for t in scene.triangles:
+        by_material.setdefault(t.material, []).append(t.world())
+    for k, (name, tris) in enumerate(by_material.items()):
+        v = np.concatenate(tris)
+        path = os.path.join(workdir, f"triangles{k}.ply")
+        trimesh.Trimesh(v, np.arange(v.shape[0]).reshape(-1, 3), process=False).export(path)
+        out.append((name, path, False))
+    for k, mesh in enumerate(scene.meshes):
+        vertices = mesh.vertices if mesh.transform is None else mesh.transform.points(mesh.vertices.T).T
+        path = os.path.join(workdir, f"mesh{k}.ply")
+        normals = None
+        if mesh.smooth and mesh.vertex_normals is not None:
+            tri = mesh_triangles(mesh)  # world-space normals, as wavefront shades them
+            normals = np.zeros_like(vertices)
+            normals[mesh.faces[:, 0]] = tri["vertex_normal"][0].T
+            normals[mesh.faces[:, 1]] = tri["vertex_normal"][1].T
+            normals[mesh.faces[:, 2]] = tri["vertex_normal"][2].T
+        trimesh.Trimesh(vertices, mesh.faces, vertex_normals=normals, process=False).export(path)
+        out.append((mesh.material, path, mesh.smooth))
+    return out

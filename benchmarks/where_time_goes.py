@@ -26,10 +26,10 @@ import wavefront  # noqa: E402
 
 # (label, file suffix, function name): cumulative time of each, as a share of the render
 STAGES = (
-    ("  brute force (the whole scene, or a BVH's outsized spheres)", "geometry.py", "intersect_brute_force"),
+    ("  brute force (the whole scene, or a BVH's outsized primitives)", "primitives.py", "intersect"),
     ("  BVH tree walk", "bvh.py", "_traverse"),
     ("    BVH leaf tests", "bvh.py", "test_leaves"),
-    ("hit points and normals", "geometry.py", "surface"),
+    ("hit points and normals (SurfaceHits)", "primitives.py", "surface"),
     ("camera rays (refill)", "path.py", "camera_paths"),
     ("lambertian kernel", "materials.py", "scatter_lambertian"),
     ("metal kernel", "materials.py", "scatter_metal"),
@@ -60,8 +60,8 @@ def main(argv=None) -> None:
     print(f"{args.scene}: {wall:.2f} s on one core unprofiled, {result.stats.segments:,} path segments "
           f"({wall / result.stats.segments * 1e9:.0f} ns each); {total:.2f} s profiled\n")
     print("| stage | share of the profiled render |\n|---|---|")
-    # the BVH's intersect() calls brute force for its outsized spheres: take the outer one
-    intersection = max(cumulative(stats, "geometry.py", "intersect_brute_force"), cumulative(stats, "bvh.py", "intersect"))
+    # the BVH's intersect() calls brute force for its outsized primitives: take the outer one
+    intersection = max(cumulative(stats, "primitives.py", "intersect"), cumulative(stats, "bvh.py", "intersect"))
     print(f"| intersection (all) | {intersection / total:.0%} |")
     for label, suffix, func in STAGES:
         print(f"| {label} | {cumulative(stats, suffix, func) / total:.0%} |")

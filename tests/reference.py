@@ -28,9 +28,16 @@ def _random_unit_vector(rng):
             return _mul(p, 1 / math.sqrt(q))
 
 
-def _hit(spheres, o, d, t_min=1e-3):
-    best, best_s = math.inf, None
-    for s in spheres:
+def _hit(scene, o, d, t_min=1e-3):
+    """Nearest hit: ``(t, point, outward normal, material name)`` or ``(inf, None, None, None)``.
+
+    Untransformed shapes only (transforms are tested on their own).  Quads
+    follow RTOW book 2; triangles use a plane hit and three edge tests, a
+    different algorithm from the engine's Moller-Trumbore.
+    """
+    best, found = math.inf, (None, None, None)
+    for s in scene.spheres:
+        assert s.transform is None
         c, r = s.center, s.radius
         oc = _sub(c, o)
         a = _dot(d, d)
@@ -41,28 +48,57 @@ def _hit(spheres, o, d, t_min=1e-3):
         sq = math.sqrt(disc)
         for t in ((h - sq) / a, (h + sq) / a):
             if t_min < t < best:
-                best, best_s = t, s
+                p = _add(o, _mul(d, t))
+                best, found = t, (p, _mul(_sub(p, c), 1 / r), s.material)
                 break
-    return best, best_s
+    for q in getattr(scene, "quads", ()):
+        assert q.transform is None
+        n = _cross(q.u, q.v)
+        normal = _unit(n)
+        denom = _dot(normal, d)
+        if abs(denom) < 1e-12:
+            continue
+        t = (_dot(normal, q.corner) - _dot(normal, o)) / denom
+        if not t_min < t < best:
+            continue
+        p = _add(o, _mul(d, t))
+        planar = _sub(p, q.corner)
+        w = _mul(n, 1 / _dot(n, n))
+        alpha, beta = _dot(w, _cross(planar, q.v)), _dot(w, _cross(q.u, planar))
+        if 0 <= alpha <= 1 and 0 <= beta <= 1:
+            best, found = t, (p, normal, q.material)
+    for tri in getattr(scene, "triangles", ()):
+        assert tri.transform is None
+        v0, v1, v2 = tri.vertices
+        normal = _unit(_cross(_sub(v1, v0), _sub(v2, v0)))
+        denom = _dot(normal, d)
+        if abs(denom) < 1e-12:
+            continue
+        t = _dot(normal, _sub(v0, o)) / denom
+        if not t_min < t < best:
+            continue
+        p = _add(o, _mul(d, t))
+        # inside when p is on the inner side of all three edges
+        if all(_dot(normal, _cross(_sub(b, a), _sub(p, a))) >= 0 for a, b in ((v0, v1), (v1, v2), (v2, v0))):
+            best, found = t, (p, normal, tri.material)
+    return (best, *found)
 
 
 def _color(scene, o, d, depth, rng):
     if depth <= 0:
         return (0.0, 0.0, 0.0)
-    t, s = _hit(scene.spheres, o, d)
-    if s is None:
+    t, p, outward, material = _hit(scene, o, d)
+    if material is None:
         bg = scene.background
         if bg.type == "solid":
             return tuple(bg.color)
         a = 0.5 * (_unit(d)[1] + 1)
         return tuple((1 - a) * b + a * tp for b, tp in zip(bg.bottom, bg.top))
-    p = _add(o, _mul(d, t))
-    outward = _mul(_sub(p, s.center), 1 / s.radius)
     front = _dot(d, outward) < 0
     n = outward if front else _mul(outward, -1)
-    m = scene.materials[s.material]
+    m = scene.materials[material]
     if m.kind == "emissive":
-        return tuple(m.color)
+        return tuple(m.color) if front else (0.0, 0.0, 0.0)  # one-sided, as in RTOW book 3
     if m.kind == "lambertian":
         sd = _add(n, _random_unit_vector(rng))
         if all(abs(x) < 1e-8 for x in sd):

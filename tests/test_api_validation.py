@@ -210,3 +210,47 @@ def test_bulk_construction_is_construction_one_by_one(rows):
     else:
         assert got == expected
         assert [type(x) for s in got for x in (*s.center, s.radius)] == [float] * (4 * len(got))
+
+
+# --- shapes beyond spheres (issue #11) obey the same rules as their YAML -------
+
+from wavefront import Box, Mesh, Quad, Transform, Triangle  # noqa: E402
+
+SHAPE_CASES = [
+    (lambda: Quad((0, 0, 0), (1, 0, 0), (2, 0, 0), "m"), "<Quad>", "", "parallel"),
+    (lambda: Quad((0, 0, math.nan), (1, 0, 0), (0, 1, 0), "m"), "<Quad>", "corner[2]", "finite"),
+    (lambda: Quad((0, 0, 0), (1, 0, 0), (0, 1, 0), 3.5), "<Quad>", "material", "expected a string"),
+    (lambda: Triangle(((0, 0, 0), (1, 1, 1), (2, 2, 2)), "m"), "<Triangle>", "vertices", "zero-area"),
+    (lambda: Triangle(((0, 0, 0), (1, 0, 0)), "m"), "<Triangle>", "vertices", "3 points"),
+    (lambda: Box((0, 0, 0), (1, 0, 1), "m"), "<Box>", "max", "must exceed min"),
+    (lambda: Sphere((0, 0, 0), 1, "m", [{"scale": [1, 2, 1]}]), "<Sphere>", "transform[0].scale", "uniformly"),
+    (lambda: Sphere((0, 0, 0), 1, "m", Transform.scale((1, 2, 1))), "<Sphere>", "transform", "uniformly"),
+    (lambda: Quad((0, 0, 0), (1, 0, 0), (0, 1, 0), "m", [{"rotate": {"axis": [0, 0, 0], "angle": 3}}]),
+     "<Quad>", "transform[0].rotate.axis", "zero"),
+    (lambda: Quad((0, 0, 0), (1, 0, 0), (0, 1, 0), "m", [{"shear": 1}]), "<Quad>", "transform[0].shear",
+     "unknown key"),
+    (lambda: Quad((0, 0, 0), (1, 0, 0), (0, 1, 0), "m", [{"scale": 0}]), "<Quad>", "transform[0].scale", "zero"),
+    (lambda: Mesh(np.zeros((3, 3)), np.array([[0, 1, 3]]), "m"), "<Mesh>", "faces", "out of range"),
+    (lambda: Mesh(np.full((3, 3), np.nan), np.array([[0, 1, 2]]), "m"), "<Mesh>", "vertices", "NaN"),
+    (lambda: Mesh(np.zeros((3, 2)), np.array([[0, 1, 2]]), "m"), "<Mesh>", "vertices", "shape"),
+    (lambda: Mesh(np.eye(3), np.array([[0.5, 1, 2]]), "m"), "<Mesh>", "faces", "array of numbers"),
+    (lambda: Mesh(np.eye(3), np.array([[0, 1, 2]]), "m", smooth="yes"), "<Mesh>", "smooth", "true or false"),
+    (lambda: scene(spheres=[], quads=[Quad((0, 0, 0), (1, 0, 0), (0, 1, 0), "nope")]), "<Scene>",
+     "quads[0].material", "unknown material"),
+    (lambda: scene(spheres=[]), "<Scene>", "shapes", "no shapes"),
+]
+
+
+@pytest.mark.parametrize("make, source, path, problem", SHAPE_CASES)
+def test_shape_objects_are_refused_with_the_field_named(make, source, path, problem):
+    refused(make, source, path, problem)
+
+
+def test_shape_objects_accept_what_files_accept():
+    quad = Quad([0, 0, 0], [1, 0, 0], [0, 1, 0], "ball", [{"rotate": {"axis": [0, 1, 0], "angle": 15}},
+                                                          {"translate": [1, 2, 3]}])
+    assert quad.corner == (0.0, 0.0, 0.0) and isinstance(quad.transform, Transform)
+    box = Box((0, 0, 0), (1, 2, 3), "ball")
+    s = scene(quads=box.quads(), triangles=[Triangle(((0, 0, -2), (1, 0, -2), (0, 1, -2)), "ball")],
+              meshes=[Mesh(np.eye(3) - 2, np.array([[0, 1, 2]]), "ball")])
+    assert len(s.quads) == 6 and np.isfinite(render(s, workers=1)).all()

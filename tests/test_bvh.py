@@ -1,16 +1,20 @@
-"""The BVH finds exactly the sphere brute force finds, for any scene and ray."""
+"""The BVH finds exactly the primitive brute force finds, for any scene and ray."""
+
+import time
 
 import numpy as np
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wavefront.accel import BVH_THRESHOLD, build_intersector
-from wavefront.bvh import SphereBVH
-from wavefront.geometry import SphereSet, intersect_brute_force, precision_for
+from wavefront.bvh import LEAF_SIZE, BVH, build_levels
+from wavefront.geometry import precision_for
+from wavefront.shapes import Primitives, QuadSet, SphereSet, TriangleSet
+from wavefront.shapes.base import exact_pad
 from wavefront.vecmath import normalize
 
 
-def random_scene(rng, m, spread, dtype=np.float64, scale=1.0):
+def random_spheres(rng, m, spread, dtype=np.float64, scale=1.0):
     center = rng.uniform(-spread, spread, (3, m)) * scale
     radius = rng.uniform(0.01, 1.0, m) * rng.choice([1, 1, 1, 20], m) * scale  # a few large ones
     if m > 1:
@@ -19,27 +23,85 @@ def random_scene(rng, m, spread, dtype=np.float64, scale=1.0):
     return SphereSet(center, radius, np.zeros(m, dtype=np.int32), dtype)
 
 
-def assert_same_hits(spheres, origin, direction, t_max):
-    brute = intersect_brute_force(spheres, origin, direction, t_max)
-    extent = max(np.abs(origin).max(), (np.abs(spheres.center) + spheres.radius).max()) * np.sqrt(3)
-    bvh = SphereBVH(spheres, extent).intersect(origin, direction, t_max)
-    np.testing.assert_array_equal(bvh.sphere_idx, brute.sphere_idx)
-    np.testing.assert_array_equal(bvh.t, brute.t)
+def sphere_scene(rng, m, spread, dtype=np.float64, scale=1.0):
+    return Primitives([random_spheres(rng, m, spread, dtype, scale)], dtype)
+
+
+def mixed_scene(rng, counts, spread, extent):
+    """Spheres, quads and triangles of all sizes, with exact duplicates and shared edges."""
+    ns, nq, nt = counts
+    spheres = random_spheres(rng, ns, spread)
+    corner = rng.uniform(-spread, spread, (3, nq))
+    u = rng.normal(size=(3, nq)) * rng.choice([0.3, 1.0, 8.0], nq)
+    v = rng.normal(size=(3, nq)) * rng.choice([0.3, 1.0, 8.0], nq)
+    quads = QuadSet(corner, u, v, np.zeros(nq, np.int32), np.float64, extent)
+    v0 = rng.uniform(-spread, spread, (3, nt))
+    v1 = v0 + rng.normal(size=(3, nt)) * rng.choice([0.2, 1.0, 5.0], nt)
+    v2 = v0 + rng.normal(size=(3, nt)) * rng.choice([0.2, 1.0, 5.0], nt)
+    if nt > 3:  # a triangle sharing an edge with the first, and a duplicate
+        v0[:, 1], v1[:, 1], v2[:, 1] = v1[:, 0], v0[:, 0], 2 * v1[:, 0] - v2[:, 0] + 0.3
+        v0[:, 2], v1[:, 2], v2[:, 2] = v0[:, 0], v1[:, 0], v2[:, 0]
+    triangles = TriangleSet(v0, v1, v2, np.zeros(nt, np.int32), np.float64, extent)
+    return Primitives([spheres, quads, triangles], np.float64, exact_pad(np.float64, extent))
+
+
+def assert_same_hits(prims, origin, direction, t_max, extent=None):
+    brute = prims.intersect(origin, direction, t_max)
+    if extent is None:
+        lo, hi = prims.bounds()
+        extent = max(np.abs(origin).max(), np.abs(lo).max(), np.abs(hi).max()) * np.sqrt(3)
+    bvh = BVH(prims, extent)
+    hits = bvh.intersect(origin, direction, t_max)
+    np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
+    np.testing.assert_array_equal(hits.t, brute.t)
+    # any-hit agrees with the existence of a nearest hit, for both intersectors
+    np.testing.assert_array_equal(bvh.occluded(origin, direction, t_max), brute.primitive_idx >= 0)
+    np.testing.assert_array_equal(prims.occluded(origin, direction, t_max), brute.primitive_idx >= 0)
     return brute
 
 
 @given(st.integers(1, 300), st.integers(0, 2**32 - 1), st.floats(1.0, 50.0), st.sampled_from([np.inf, 5.0]))
-def test_bvh_agrees_exactly_with_brute_force(m, seed, spread, t_max):
+def test_bvh_agrees_exactly_with_brute_force_on_spheres(m, seed, spread, t_max):
     rng = np.random.default_rng(seed)
-    spheres = random_scene(rng, m, spread)
+    prims = sphere_scene(rng, m, spread)
     n = 400
     origin = rng.uniform(-spread, spread, (3, n))
     direction = normalize(rng.normal(size=(3, n)))
     direction[:, :5] = np.eye(3)[:, [0, 1, 2, 2, 0]] * np.array([1, 1, -1, 1, -1])  # axis-aligned rays
-    origin[:, -3:] = spheres.center[:, :1] + np.array([[0.0], [0.0], [1.0]]) * spheres.radius[0]  # start on a surface
-    assert_same_hits(spheres, origin, direction, t_max)
+    center, radius = prims.kinds[0].center, prims.kinds[0].radius
+    origin[:, -3:] = center[:, :1] + np.array([[0.0], [0.0], [1.0]]) * radius[0]  # start on a surface
+    assert_same_hits(prims, origin, direction, t_max)
 
 
+@settings(deadline=None)
+@given(st.tuples(st.integers(0, 80), st.integers(0, 80), st.integers(0, 300)), st.integers(0, 2**32 - 1),
+       st.floats(1.0, 30.0), st.sampled_from([np.inf, 5.0]))
+def test_bvh_agrees_exactly_with_brute_force_on_mixed_scenes(counts, seed, spread, t_max):
+    """Spheres, quads and triangles in one tree: same primitive, same t, and
+    the any-hit query agrees with the nearest hit's existence."""
+    if sum(counts) == 0:
+        counts = (0, 0, 1)
+    rng = np.random.default_rng(seed)
+    extent = 4 * spread
+    prims = mixed_scene(rng, counts, spread, extent)
+    n = 500
+    origin = rng.uniform(-spread, spread, (3, n))
+    direction = normalize(rng.normal(size=(3, n)))
+    direction[:, :6] = np.eye(3)[:, [0, 1, 2, 2, 0, 1]] * np.array([1, 1, -1, 1, -1, -1])  # axis-aligned rays
+    lo, hi = prims.bounds()
+    # rays aimed at random points of primitives' boxes, and at triangle vertices and edges
+    target = lo + rng.uniform(0, 1, lo.shape) * (hi - lo)
+    pick = rng.integers(0, len(prims), n // 2)
+    direction[:, 6:n // 2 + 6] = normalize(target[:, pick] - origin[:, 6:n // 2 + 6])[:, :n // 2]
+    if counts[2]:
+        tri = prims.kinds[-1]
+        k = rng.integers(0, len(tri), 40)
+        edge_point = tri.v0[:, k] + rng.uniform(0, 1, 40) * tri.e1[:, k]  # on an edge
+        direction[:, -40:] = normalize(edge_point - origin[:, -40:])
+    assert_same_hits(prims, origin, direction, t_max, extent)
+
+
+@settings(deadline=None)
 @given(st.integers(1, 200), st.integers(0, 2**32 - 1), st.booleans(),
        st.sampled_from([1e-3, 1.0, 1e3]), st.sampled_from([1.0, 30.0, 1e4]))
 def test_bvh_agrees_on_grazing_rays_from_far_away(m, seed, prefer_float32, scale, distance):
@@ -51,10 +113,10 @@ def test_bvh_agrees_on_grazing_rays_from_far_away(m, seed, prefer_float32, scale
     would choose it (:func:`precision_for`), else in float64.
     """
     rng = np.random.default_rng(seed)
-    spheres = random_scene(rng, m, 10.0, np.float64, scale)
+    spheres = random_spheres(rng, m, 10.0, np.float64, scale)
     extent = 10.0 * scale * max(distance, 4.0)
     if prefer_float32 and precision_for(spheres.radius, extent) == np.float32:
-        spheres = random_scene(np.random.default_rng(seed), m, 10.0, np.float32, scale)
+        spheres = random_spheres(np.random.default_rng(seed), m, 10.0, np.float32, scale)
     dtype = spheres.dtype
     n = 300
     target_sphere = rng.integers(0, m, n)
@@ -68,8 +130,10 @@ def test_bvh_agrees_on_grazing_rays_from_far_away(m, seed, prefer_float32, scale
     direction[axis, np.arange(n // 3)] = rng.choice([-1.0, 1.0], n // 3)
     origin[:, : n // 3] = on_surface[:, : n // 3] - direction[:, : n // 3] * 10.0 * scale * distance
     origin, direction = origin.astype(dtype), direction.astype(dtype)
-    brute = assert_same_hits(spheres, origin, direction, np.inf)
-    assert (brute.sphere_idx >= 0).mean() > 0.3  # the rays do find spheres
+    lo = np.abs(spheres.center.astype(np.float64)) + spheres.radius.astype(np.float64)
+    brute = assert_same_hits(Primitives([spheres], dtype), origin, direction, np.inf,
+                             max(np.abs(origin).max(), lo.max()) * np.sqrt(3))
+    assert (brute.primitive_idx >= 0).mean() > 0.3  # the rays do find spheres
 
 
 def test_bvh_with_a_ground_far_below_tiny_spheres():
@@ -79,18 +143,65 @@ def test_bvh_with_a_ground_far_below_tiny_spheres():
     center = np.vstack((rng.uniform(-5, 5, m), np.full(m, 0.2), rng.uniform(-5, 5, m)))
     radius = np.full(m, 0.2)
     center[:, 0], radius[0] = (0.0, -1000.0, 0.0), 1000.0
-    spheres = SphereSet(center, radius, np.zeros(m, dtype=np.int32))
+    prims = Primitives([SphereSet(center, radius, np.zeros(m, dtype=np.int32))])
     n = 2000
     origin = np.vstack((rng.uniform(-60, 60, n), np.zeros(n), rng.uniform(-60, 60, n)))
     origin[1] = np.sqrt(1000.0**2 - origin[0] ** 2 - origin[2] ** 2) - 1000.0  # on the ground
     target = center[:, rng.integers(1, m, n)] + rng.normal(0, 0.2, (3, n))
     direction = normalize(target - origin)
-    brute = assert_same_hits(spheres, origin, direction, np.inf)
-    assert (brute.sphere_idx > 0).sum() > 100  # rays reach the small spheres
-    assert (brute.sphere_idx == 0).sum() > 10  # and some hit the ground first
+    brute = assert_same_hits(prims, origin, direction, np.inf)
+    assert (brute.primitive_idx > 0).sum() > 100  # rays reach the small spheres
+    assert (brute.primitive_idx == 0).sum() > 10  # and some hit the ground first
 
 
 def test_switch_is_automatic():
     rng = np.random.default_rng(0)
-    assert isinstance(build_intersector(random_scene(rng, BVH_THRESHOLD, 10)), SphereBVH)
-    assert isinstance(build_intersector(random_scene(rng, BVH_THRESHOLD - 1, 10)), SphereSet)
+    assert isinstance(build_intersector(sphere_scene(rng, BVH_THRESHOLD, 10)), BVH)
+    assert isinstance(build_intersector(sphere_scene(rng, BVH_THRESHOLD - 1, 10)), Primitives)
+
+
+def test_level_by_level_build_is_a_valid_median_split_tree():
+    """Every primitive is in exactly one leaf, leaves hold at most LEAF_SIZE,
+    children's boxes lie in their parent's, siblings split their parent's run."""
+    rng = np.random.default_rng(5)
+    m = 1003
+    lo = rng.uniform(-10, 10, (3, m))
+    hi = lo + rng.uniform(0, 1, (3, m))
+    tree = build_levels(lo, hi, np.arange(m))
+    child, first, count, order = tree["child"], tree["first"], tree["count"], tree["order"]
+    leaf = child < 0
+    assert count[leaf].max() <= LEAF_SIZE and count[leaf].min() >= 1
+    covered = np.concatenate([order[f:f + c] for f, c in zip(first[leaf], count[leaf])])
+    np.testing.assert_array_equal(np.sort(covered), np.arange(m))
+    inner = np.flatnonzero(~leaf)
+    for side in (0, 1):  # children's boxes inside their parent's
+        assert (tree["lo"][:, child[inner] + side] >= tree["lo"][:, inner]).all()
+        assert (tree["hi"][:, child[inner] + side] <= tree["hi"][:, inner]).all()
+    assert tree["first_leaf_depth"] >= 1
+
+
+def test_a_million_triangles_build():
+    """A 1M-triangle mesh builds (not a timing test: performance is measured in
+    benchmarks/, never asserted); the timing is printed for the curious."""
+    n = 708  # 2 n^2 ~ 1M triangles
+    rng = np.random.default_rng(0)
+    x, z = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    y = 0.05 * rng.normal(size=x.shape)
+    grid = np.stack((x, y, z)).reshape(3, -1)
+    i = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    quads = np.stack((i, i + 1, i + n + 2, i + n + 1))
+    faces = np.concatenate((quads[[0, 1, 2]], quads[[0, 2, 3]]), axis=1)
+    tris = TriangleSet(grid[:, faces[0]], grid[:, faces[1]], grid[:, faces[2]],
+                       np.zeros(faces.shape[1], np.int32), np.float64, 4.0)
+    prims = Primitives([tris], np.float64, exact_pad(np.float64, 4.0))
+    start = time.perf_counter()
+    bvh = BVH(prims, 4.0)
+    print(f"BVH over {len(prims)} triangles built in {time.perf_counter() - start:.2f} s")
+    origin = np.tile(np.array([[0.0], [2.0], [0.0]]), (1, 2000)) + rng.uniform(-0.5, 0.5, (3, 2000))
+    direction = normalize(rng.uniform(-1, 1, (3, 2000)) * np.array([[0.2], [0.0], [0.2]]) - np.array([[0], [1], [0]]))
+    hits = bvh.intersect(origin, direction)
+    assert (hits.primitive_idx >= 0).all()  # every ray down onto the grid finds it
+    sample = np.arange(0, 2000, 400)  # brute force over 1M triangles is slow: a few rays suffice
+    brute = prims.intersect(origin[:, sample], direction[:, sample])
+    np.testing.assert_array_equal(hits.primitive_idx[sample], brute.primitive_idx)
+    np.testing.assert_array_equal(hits.t[sample], brute.t)

@@ -69,3 +69,41 @@ def test_negative_control_wrong_refraction_index_is_rejected(small_three_spheres
     materials = dict(small_three_spheres.materials, glass=Dielectric(1.1))
     bad, worst = rejected(wavefront_estimate(small_three_spheres.replace(materials=materials)), reference)
     assert bad, f"largest |z| = {worst:.2f}"
+
+
+# -- quads and triangles ------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_shapes():
+    """Quads, a triangle and a sphere of every material kind, lit by a one-sided
+    quad light facing down that the camera sees from above (its dark back)."""
+    from wavefront import Camera, Emissive, Lambertian, Quad, RenderSettings, Scene, Solid, Triangle
+
+    materials = {"floor": Lambertian((0.6, 0.6, 0.6)), "red": Lambertian((0.7, 0.1, 0.1)),
+                 "mirror": Metal((0.8, 0.8, 0.9), 0.2), "glass": Dielectric(1.5), "lamp": Emissive((6, 6, 6))}
+    quads = [Quad((-3, 0, 3), (6, 0, 0), (0, 0, -6), "floor"),
+             Quad((-1.5, 0, -1.5), (3, 0, 0), (0, 2, -0.5), "mirror"),
+             Quad((-0.5, 2.2, 0.5), (0, 0, -1), (1, 0, 0), "lamp")]  # cross(u, v) = -y: shines down
+    triangles = [Triangle(((-1.2, 0, 0.5), (-0.2, 0, 0.8), (-0.7, 1.2, 0.3)), "red")]
+    return Scene(spheres=[Sphere((0.7, 0.5, 0.6), 0.5, "glass")], quads=quads, triangles=triangles,
+                 materials=materials, camera=Camera(look_from=(0, 2.8, 4), look_at=(0, 0.6, 0), vfov=50),
+                 background=Solid((0.2, 0.2, 0.25)), width=16, height=9,
+                 render=RenderSettings(samples_per_pixel=SPP, max_depth=8))
+
+
+@pytest.fixture(scope="module")
+def shapes_reference(small_shapes):
+    return reference_render(small_shapes)
+
+
+def test_quads_and_triangles_match_reference_tracer(small_shapes, shapes_reference):
+    bad, worst = rejected(wavefront_estimate(small_shapes), shapes_reference)
+    assert not bad, f"largest |z| = {worst:.2f}"
+
+
+def test_negative_control_a_light_facing_the_wrong_way_is_rejected(small_shapes, shapes_reference):
+    from wavefront import Quad
+
+    flipped = [q if q.material != "lamp" else Quad(q.corner, q.v, q.u, "lamp") for q in small_shapes.quads]
+    bad, worst = rejected(wavefront_estimate(small_shapes.replace(quads=flipped)), shapes_reference)
+    assert bad, f"largest |z| = {worst:.2f}"

@@ -38,12 +38,13 @@ def test_issue_example_loads_exactly():
     assert scene.camera.defocus_angle == 10 and scene.camera.focus_dist == 3.4
 
 
-def test_everything_but_spheres_has_a_default():
-    scene = scene_from_dict({"spheres": []})
+def test_everything_but_a_shape_has_a_default():
+    ball = {"materials": {"m": {"type": "lambertian"}}, "spheres": [{"center": [0, 0, -1], "radius": 1, "material": "m"}]}
+    scene = scene_from_dict(ball)
     assert (scene.width, scene.height, scene.render.samples_per_pixel, scene.render.depth) == (400, 225, 100, 50)
     assert isinstance(scene.background, Sky)
-    assert scene_from_dict({"spheres": [], "background": {"type": "solid"}}).background == Solid((0, 0, 0))
-    assert scene_from_dict({"spheres": [], "materials": {"m": {"type": "lambertian"}}}).materials["m"] == Lambertian()
+    assert scene_from_dict({**ball, "background": {"type": "solid"}}).background == Solid((0, 0, 0))
+    assert scene.materials["m"] == Lambertian()
 
 
 def broken(path, value):
@@ -102,9 +103,10 @@ def test_malformed_value_is_named_by_yaml_path(path, value, where, problem):
     assert problem in message
 
 
-def test_missing_spheres_key():
-    with pytest.raises(SceneError, match=r"x.yaml: spheres: required"):
-        scene_from_dict({"image": {"width": 4}}, source="x.yaml")
+@pytest.mark.parametrize("doc", [{"image": {"width": 4}}, {"spheres": [], "quads": None}])
+def test_a_scene_needs_at_least_one_shape(doc):
+    with pytest.raises(SceneError, match=r"x.yaml: the scene has no shapes"):
+        scene_from_dict(doc, source="x.yaml")
 
 
 @pytest.mark.parametrize("text,problem", [
@@ -170,7 +172,7 @@ def test_yaml_1_1_numbers_that_1_2_reads_differently_are_refused(text, problem):
 
 def test_yaml_1_1_lookalikes_are_text_where_text_is_expected():
     assert read_yaml(b"name: 1:30\nspheres: []\n", "n.yaml")["name"] == "1:30"
-    assert scene_from_dict(read_yaml(b"name: 010\nspheres: []\n", "n.yaml")).name == "010"
+    assert scene_from_dict(read_yaml(b"name: 010\nmaterials: {m: {type: lambertian}}\nspheres: [{center: [0, 0, -1], radius: 0.5, material: m}]\n", "n.yaml")).name == "010"
 
 
 @pytest.mark.parametrize("text,expected", [
@@ -233,8 +235,8 @@ def test_nesting_error_names_its_path():
 
 def test_files_past_the_old_16_mib_limit_load(tmp_path):
     scene = tmp_path / "big.yaml"
-    scene.write_bytes(b"#" * (20 << 20) + b"\nspheres: []\n")
-    assert load_scene(scene).spheres == []
+    scene.write_bytes(b"#" * (20 << 20) + b"\nmaterials: {m: {type: lambertian}}\nspheres: [{center: [0, 0, -1], radius: 0.5, material: m}]\n")
+    assert len(load_scene(scene).spheres) == 1
 
 
 def test_bulk_spheres_are_checked_like_single_ones():

@@ -1,4 +1,4 @@
-"""wavefront: a readable, tested NumPy wavefront path tracer for spheres.
+"""wavefront: a readable, tested NumPy wavefront path tracer for spheres, quads, boxes, triangles and meshes.
 
 >>> from wavefront import load_scene, render
 >>> image = render(load_scene("scenes/three_spheres.yaml"))  # (H, W, 3) linear float32
@@ -14,10 +14,12 @@ from .output import OutputError
 from .render import MemoryBudgetError, RenderResult, render, render_scene
 from .scene import PointLight, RenderSettings, Scene
 from .scenefile import SceneError, SceneWarning, load_scene, scene_from_dict
+from .shapes import Box, Mesh, Quad, Triangle, box_quads
+from .transform import Transform
 
 __all__ = [
-    "CheckpointError", "MemoryBudgetError", "OutputError",
-    "Camera", "Dielectric", "Emissive", "Lambertian", "Metal", "Phong", "PointLight",
+    "Box", "CheckpointError", "MemoryBudgetError", "OutputError",
+    "Camera", "Dielectric", "Emissive", "Lambertian", "Mesh", "Metal", "Phong", "PointLight", "Quad",
     "RenderResult", "RenderSettings", "Scene", "SceneError", "SceneWarning", "Sky", "Solid",
-    "Sphere", "load_scene", "render", "render_scene", "scene_from_dict",
+    "Sphere", "Transform", "Triangle", "box_quads", "load_scene", "render", "render_scene", "scene_from_dict",
 ]

@@ -2,21 +2,22 @@
 
 from __future__ import annotations
 
-from .geometry import SphereSet
+from .shapes import Primitives
 
-# Below this many spheres, testing every ray against every sphere in a few
-# broadcast blocks beats any hierarchy's bookkeeping.
+# Below this many primitives, testing every ray against every primitive in a
+# few broadcast blocks beats any hierarchy's bookkeeping.
 BVH_THRESHOLD = 64
 
 
-def build_intersector(spheres: SphereSet, extent: float | None = None):
-    """The intersector for ``spheres``: brute force for few, a BVH for many.
+def build_intersector(primitives: Primitives, extent: float | None = None):
+    """The intersector for ``primitives``: brute force for few, a BVH for many.
 
-    ``extent`` bounds the distance from the origin of every ray origin (the
-    BVH pads its boxes by the rounding error of rays from that far).
+    Both answer ``intersect``, ``occluded`` and ``surface`` alike.  ``extent``
+    bounds the distance from the origin of every ray origin (the BVH pads its
+    boxes by the rounding error of rays from that far).
     """
-    if len(spheres) < BVH_THRESHOLD:
-        return spheres
-    from .bvh import SphereBVH
+    if len(primitives) < BVH_THRESHOLD:
+        return primitives
+    from .bvh import BVH
 
-    return SphereBVH(spheres, extent)
+    return BVH(primitives, extent)

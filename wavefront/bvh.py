@@ -1,24 +1,28 @@
-"""A bounding volume hierarchy over spheres, traversed breadth-first for whole batches.
+"""One bounding volume hierarchy over all primitives of all kinds, traversed breadth-first for whole batches.
 
 Depth-first traversal with a stack per ray does not vectorise.  Instead the
 unit of work is a (ray, node) *pair*: every pair whose box the ray enters
 before its best hit so far survives, interior nodes expand to two child
-pairs, and leaves expand to (ray, sphere) pairs.  Those pass a conservative
-float32 test first, and the few that survive it are tested with exactly the
-arithmetic of the brute-force intersector (:func:`sphere_roots`), so both
-find the same sphere at the same ``t`` for every ray, bit for bit.  Each
+pairs, and leaves expand to (ray, primitive) pairs.  Those pass a
+conservative float32 test against each primitive's bounding sphere first, and
+the few that survive it are tested with exactly the arithmetic of the
+brute-force intersector (each kind's ``exact_t``), so both find the same
+primitive at the same ``t`` for every ray, bit for bit.  Each
 level is a handful of NumPy calls over all pairs of that level; the Python
 loop runs over the tree's depth, never over rays.
 
 The tree is built top-down by median split along the widest axis of the
-sphere centres, with at most ``LEAF_SIZE`` spheres per leaf.  Outsized
-spheres (a ground of radius 1000 among balls of 0.2, or W2's three balls of
-radius 1) are kept out of the tree and tested by brute force first: inside
+primitives' box centres, with at most ``LEAF_SIZE`` primitives per leaf, one
+level at a time: each level is a few NumPy calls (a segmented reduction for
+the boxes, one sort keyed by (node, centre along the node's axis)) over all
+primitives still in interior nodes, so a million triangles build in seconds.
+Outsized primitives (by bounding radius: a ground sphere of radius 1000 among
+balls of 0.2, W2's three balls of radius 1, a Cornell box's walls) are kept out of the tree and tested by brute force first: inside
 the tree their boxes would stretch every node above them, and testing them
 first gives many rays a nearby hit that prunes every box beyond it.
 
 Traversal runs in float32 whatever the scene's precision: it only has to be
-conservative, never exact, because the spheres of every leaf it reaches are
+conservative, never exact, because the primitives of every leaf it reaches are
 tested in the scene's precision.  Each ray is first clipped to the root box
 in the scene's precision and its origin moved to where it enters, so the
 float32 coordinates are never larger than the tree's own; boxes are padded by
@@ -37,7 +41,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import T_MIN, Hits, SphereSet, escaped_at_inf, intersect_brute_force, is_hit, nearest_root, sphere_roots
+from .geometry import T_MIN, escaped_at_inf, is_hit
+from .shapes import Hits, Primitives
 from .vecmath import gather
 
 LEAF_SIZE = 4
@@ -79,75 +84,122 @@ def float32_down(x) -> np.ndarray:
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
 
 
-class SphereBVH:
-    """Same interface as :class:`~wavefront.geometry.SphereSet`."""
+def build_levels(lo: np.ndarray, hi: np.ndarray, members: np.ndarray, leaf_size: int = LEAF_SIZE) -> dict:
+    """A median-split tree over the boxes ``lo, hi (3, M)`` of ``members``, built level by level.
 
-    def __init__(self, spheres: SphereSet, extent: float | None = None):
+    Nodes are numbered breadth-first (the root is 0) and siblings are
+    adjacent, so an interior node stores only its left child.  The nodes of a
+    level own consecutive runs (``first``, ``count``) of the permutation
+    ``order``; a level sorts each run by the box centres along its widest
+    axis in one ``argsort`` over every run at once (keyed by run number plus
+    the normalised centre), and halves it.  No Python loop runs over nodes.
+
+    Returns
+    -------
+    dict with ``lo, hi (3, K)`` node boxes, ``child (K,)`` (left child, or -1
+    for a leaf), ``first, count (K,)`` (a leaf's run of ``order``; count 0 for
+    interior nodes), ``order (M,)`` and ``first_leaf_depth``.
+    """
+    centre = 0.5 * (lo + hi)
+    order = np.asarray(members, dtype=np.int64).copy()
+    first = np.zeros(1, dtype=np.int64)
+    count = np.array([order.size], dtype=np.int64)
+    levels = []
+    first_leaf_depth = None
+    base = 0  # index of the level's first node
+    depth = 0
+    while first.size:
+        nodes = first.size
+        start = np.cumsum(count) - count  # each run's start in the level's concatenation
+        run = np.repeat(np.arange(nodes), count)
+        position = first.take(run) + (np.arange(run.size) - start.take(run))
+        element = order.take(position)
+        box_lo = np.minimum.reduceat(lo.take(element, axis=1), start, axis=1)
+        box_hi = np.maximum.reduceat(hi.take(element, axis=1), start, axis=1)
+        leaf = count <= leaf_size
+        inner = np.flatnonzero(~leaf)
+        child = np.full(nodes, -1, dtype=np.int64)
+        child[inner] = base + nodes + 2 * np.arange(inner.size)
+        levels.append((box_lo, box_hi, child, np.where(leaf, first, 0), np.where(leaf, count, 0)))
+        if first_leaf_depth is None and leaf.any():
+            first_leaf_depth = depth
+        if inner.size == 0:
+            break
+        # split every interior run at its median along its widest axis
+        keep = np.flatnonzero(~leaf.take(run))
+        rank = np.cumsum(~leaf) - 1
+        run_i = rank.take(run.take(keep))
+        position_i, element_i = position.take(keep), element.take(keep)
+        count_i = count.take(inner)
+        start_i = np.cumsum(count_i) - count_i
+        c = centre.take(element_i, axis=1)
+        c_lo = np.minimum.reduceat(c, start_i, axis=1)
+        c_hi = np.maximum.reduceat(c, start_i, axis=1)
+        span = c_hi - c_lo
+        axis = np.argmax(span, axis=0)
+        axis_e = axis.take(run_i)
+        key = c[axis_e, np.arange(run_i.size)] - c_lo[axis, np.arange(inner.size)].take(run_i)
+        width = span[axis, np.arange(inner.size)]
+        key /= np.where(width > 0, width, 1.0).take(run_i)  # in [0, 1] within its run
+        ranked = np.argsort(run_i + 0.5 * key, kind="stable")  # runs stay in order, each sorted
+        order[position_i] = element_i.take(ranked)
+        half = count_i // 2
+        first_i = first.take(inner)
+        first = np.stack((first_i, first_i + half), axis=1).ravel()
+        count = np.stack((half, count_i - half), axis=1).ravel()
+        base += nodes
+        depth += 1
+    lo_all, hi_all, child, first_all, count_all = (np.concatenate(parts, axis=-1) for parts in zip(*levels))
+    return dict(lo=lo_all, hi=hi_all, child=child, first=first_all, count=count_all, order=order,
+                first_leaf_depth=first_leaf_depth if first_leaf_depth is not None else 0)
+
+
+class BVH:
+    """Same interface as :class:`~wavefront.shapes.Primitives` (brute force), and the same answers."""
+
+    def __init__(self, primitives: Primitives, extent: float | None = None):
         """``extent``: how far from the origin rays may start (default: the
         tree's own extent); boxes are padded by brute force's rounding there."""
-        self.spheres = spheres
+        self.primitives = primitives
         self.extent = extent
-        self.center, self.radius = spheres.center, spheres.radius
-        self.material_idx = spheres.material_idx
-        order = np.argsort(-spheres.radius, kind="stable")[:MAX_OUTSIZED]
-        self.outsized = np.sort(order[spheres.radius[order] > OUTSIZED * np.median(spheres.radius)])
-        inside = np.ones(len(spheres), dtype=bool)
+        self.material_idx = primitives.material_idx
+        self.bound_center, self.bound_radius = primitives.bounding_sphere()
+        radius = self.bound_radius
+        order = np.argsort(-radius, kind="stable")[:MAX_OUTSIZED]
+        self.outsized = np.sort(order[radius[order] > OUTSIZED * np.median(radius)])
+        inside = np.ones(len(primitives), dtype=bool)
         inside[self.outsized] = False
-        self.outsized_set = spheres.subset(self.outsized)
+        self.outsized_set = primitives.subset(self.outsized)
         self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
-        return len(self.spheres)
+        return len(self.primitives)
 
-    def surface(self, origin, direction, t, sphere):
-        return self.spheres.surface(origin, direction, t, sphere)
-
-    def occluded(self, origin, direction, t_max) -> np.ndarray:
-        return self.intersect(origin, direction, t_max).sphere_idx >= 0
+    def surface(self, origin, direction, t, idx, uv: bool = False):
+        return self.primitives.surface(origin, direction, t, idx, uv)
 
     # -- construction ------------------------------------------------------
 
     def _build(self, members: np.ndarray) -> None:
-        c, r = self.center, self.radius
-        lo_s, hi_s = c - r, c + r
-        lo, hi, child, first, count, order = [], [], [], [], [], []
-
-        def allocate(count_nodes: int) -> int:
-            k = len(lo)
-            for lst in (lo, hi):
-                lst.extend([None] * count_nodes)
-            child.extend([-1] * count_nodes), first.extend([0] * count_nodes), count.extend([0] * count_nodes)
-            return k
-
-        def _fill(k: int, idx: np.ndarray) -> None:
-            lo[k] = lo_s[:, idx].min(axis=1)
-            hi[k] = hi_s[:, idx].max(axis=1)
-            if idx.size <= LEAF_SIZE:
-                first[k], count[k] = len(order), idx.size
-                order.extend(idx.tolist())
-                return
-            cen = c[:, idx]
-            axis = int(np.argmax(cen.max(axis=1) - cen.min(axis=1)))
-            ranked = idx[np.argsort(cen[axis], kind="stable")]
-            half = ranked.size // 2
-            left = allocate(2)  # siblings are adjacent: right = left + 1
-            child[k] = left
-            _fill(left, ranked[:half])
-            _fill(left + 1, ranked[half:])
-
-        _fill(allocate(1), members)
-        boxes = np.concatenate((np.array(lo).T, np.array(hi).T))  # (6, K): lo xyz, hi xyz
-        self.child = np.array(child, dtype=np.int64)
-        self.first = np.array(first, dtype=np.int64)
-        self.count = np.array(count, dtype=np.int64)
-        self.order = np.array(order, dtype=np.int64)
-        # each leaf's spheres in a fixed-width table, padded with unhittable NaN spheres
+        lo, hi = self.primitives.bounds()
+        self.empty = members.size == 0
+        if self.empty:  # everything is outsized: a single empty leaf that no ray reaches
+            members = np.zeros(0, dtype=np.int64)
+            lo = hi = np.zeros((3, 1))
+            tree = dict(lo=np.zeros((3, 1)), hi=np.zeros((3, 1)), child=np.array([-1]), first=np.array([0]),
+                        count=np.array([0]), order=members, first_leaf_depth=0)
+        else:
+            tree = build_levels(lo, hi, members)
+        boxes = np.concatenate((tree["lo"], tree["hi"]))  # (6, K): lo xyz, hi xyz
+        self.child, self.first, self.count, self.order = tree["child"], tree["first"], tree["count"], tree["order"]
+        self.first_leaf_depth = tree["first_leaf_depth"]
+        # each leaf's primitives in a fixed-width table, padded with unhittable NaN spheres
         k = self.child.size
         self.leaf_slot = np.full((LEAF_SIZE, k), -1, dtype=np.int64)
         for j in range(LEAF_SIZE):
             has = self.count > j
-            self.leaf_slot[j, has] = self.order[self.first[has] + j]
-        self.leaf_sphere = np.maximum(self.leaf_slot, 0).ravel()  # (LEAF_SIZE * K,): slot j of node k at j * K + k
+            self.leaf_slot[j, has] = self.order.take(self.first[has] + j)
+        self.leaf_primitive = np.maximum(self.leaf_slot, 0).ravel()  # (LEAF_SIZE * K,): slot j of node k at j * K + k
         self._build_traversal_tables(boxes.astype(np.float64))
 
     def _build_traversal_tables(self, boxes: np.ndarray) -> None:
@@ -162,16 +214,18 @@ class SphereBVH:
         f32 = np.float32
         tree_extent = float(np.abs(boxes).max())
         rays_extent = tree_extent if self.extent is None else max(tree_extent, float(self.extent))
-        pad = max(BOX_PAD * tree_extent, ROUNDING_PAD * float(np.finfo(self.spheres.dtype).eps) * 2 * rays_extent)
-        pad += float(np.finfo(f32).tiny)
+        pad = max(BOX_PAD * tree_extent, ROUNDING_PAD * float(np.finfo(self.primitives.dtype).eps) * 2 * rays_extent)
+        # flat primitives accept hits up to their own (much smaller) pad outside their boxes
+        pad += self.primitives.pad + float(np.finfo(f32).tiny)
         # the root box, padded alike, clips rays in the scene's precision
         self.root_box = np.concatenate((boxes[:3, :1] - pad, boxes[3:, :1] + pad))
-        # leaves' spheres in float32 for the first, conservative pass of the leaf test;
+        # leaves' bounding spheres in float32 for the first, conservative pass of the leaf test;
         # NaN in padding slots fails every comparison
         real = self.leaf_slot >= 0
-        center = self.center.astype(np.float64)[:, np.maximum(self.leaf_slot, 0)]
+        slot = np.maximum(self.leaf_slot, 0)
+        center = self.bound_center[:, slot]
         self.leaf_center32 = np.where(real, center, np.nan).astype(f32)  # (3, LEAF_SIZE, K)
-        reach = self.radius.astype(np.float64)[np.maximum(self.leaf_slot, 0)] + LEAF_PAD * pad
+        reach = self.bound_radius[slot] + LEAF_PAD * pad
         self.leaf_reach32 = float32_up(np.where(real, reach, np.nan))
         lo, hi = float32_down(boxes[:3] - pad), float32_up(boxes[3:] + pad)  # rounded outwards
         left = np.maximum(self.child, 0)
@@ -188,51 +242,71 @@ class SphereBVH:
         offset = np.arange(8)[:, None] * k
         self.octant_left = (left + offset).ravel()  # the right child is the next column
         self.octant_is_leaf = np.tile(self.count > 0, 8)
-        # levels above the shallowest leaf need no leaf/interior split
-        depth = np.zeros(k, dtype=np.int64)
-        for node in range(k):  # parents come before their children
-            if self.child[node] >= 0:
-                depth[self.child[node]:self.child[node] + 2] = depth[node] + 1
-        self.first_leaf_depth = int(depth[self.count > 0].min())
 
     # -- traversal -----------------------------------------------------------
 
     def intersect(self, origin, direction, t_max=np.inf) -> Hits:
+        """Nearest hit with ``T_MIN < t < t_max`` for every ray (see :meth:`Primitives.intersect`)."""
+        return self._batched(self._intersect, origin, direction, t_max)
+
+    def occluded(self, origin, direction, t_max) -> np.ndarray:
+        """Any hit with ``T_MIN < t < t_max``: a ray leaves the traversal at its first hit."""
+        return self._batched(self._occluded, origin, direction, t_max)
+
+    def _batched(self, query, origin, direction, t_max):
         n = origin.shape[1]
         if n <= TRAVERSAL_BATCH:
-            return self._intersect(origin, direction, t_max)
+            return query(origin, direction, t_max)
         t_max = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        parts = [self._intersect(origin[:, a:a + TRAVERSAL_BATCH], direction[:, a:a + TRAVERSAL_BATCH],
-                                 t_max[a:a + TRAVERSAL_BATCH]) for a in range(0, n, TRAVERSAL_BATCH)]
-        return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.sphere_idx for h in parts]))
+        parts = [query(origin[:, a:a + TRAVERSAL_BATCH], direction[:, a:a + TRAVERSAL_BATCH],
+                       t_max[a:a + TRAVERSAL_BATCH]) for a in range(0, n, TRAVERSAL_BATCH)]
+        if isinstance(parts[0], Hits):
+            return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.primitive_idx for h in parts]))
+        return np.concatenate(parts)
 
     def _intersect(self, origin, direction, t_max) -> Hits:
         n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        # outsized spheres first: their hits bound the traversal
-        first = intersect_brute_force(self.outsized_set, origin, direction, t_max)
+        # outsized primitives first: their hits bound the traversal
+        first = self.outsized_set.intersect(origin, direction, t_max)
         best_t = np.minimum(first.t, limit)
         found = self._traverse(origin, direction, limit, best_t)  # lowers best_t to the tree's hits
-        none = len(self.spheres)  # sentinel above every sphere index, so np.minimum keeps real ones
+        none = len(self.primitives)  # sentinel above every index, so np.minimum keeps real ones
         best_idx = np.full(n, none, dtype=np.int64)
-        from_first = np.flatnonzero((first.sphere_idx >= 0) & (first.t == best_t))
-        best_idx[from_first] = self.outsized.take(first.sphere_idx.take(from_first))
+        from_first = np.flatnonzero((first.primitive_idx >= 0) & (first.t == best_t))
+        best_idx[from_first] = self.outsized.take(first.primitive_idx.take(from_first))
         if found:
-            ray, t, sphere = (np.concatenate(a) for a in zip(*found))
+            ray, t, prim = (np.concatenate(a) for a in zip(*found))
             winner = np.flatnonzero(t == best_t.take(ray))
-            # ties go to the lowest sphere index, as in brute force
-            np.minimum.at(best_idx, ray.take(winner), sphere.take(winner))
+            # ties go to the lowest primitive index, as in brute force
+            np.minimum.at(best_idx, ray.take(winner), prim.take(winner))
         missed = best_idx == none
         best_idx -= missed * (none + 1)  # the sentinel becomes -1
         return Hits(escaped_at_inf(best_t, ~missed, t_max), best_idx.astype(np.int32))
 
-    def _traverse(self, origin, direction, limit, best_t) -> list:
+    def _occluded(self, origin, direction, t_max) -> np.ndarray:
+        n = origin.shape[1]
+        limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
+        blocked = self.outsized_set.occluded(origin, direction, limit) if len(self.outsized_set) else \
+            np.zeros(n, dtype=bool)
+        rest = np.flatnonzero(~blocked)
+        if rest.size:
+            o, d, lim = origin.take(rest, axis=1), direction.take(rest, axis=1), limit.take(rest)
+            found = self._traverse(o, d, lim, lim.copy(), any_hit=True)
+            if found:
+                blocked[rest.take(np.concatenate([f[0] for f in found]))] = True
+        return blocked
+
+    def _traverse(self, origin, direction, limit, best_t, any_hit: bool = False) -> list:
         """Walk the tree for the rays that enter its root box.
 
         Lowers ``best_t`` in place to each ray's nearest tree hit and returns
-        a list of ``(ray, t, sphere)`` candidate hits; per ray, those with
-        ``t == best_t`` are the nearest.
+        a list of ``(ray, t, primitive)`` candidate hits; per ray, those with
+        ``t == best_t`` are the nearest.  With ``any_hit`` a ray leaves the
+        walk at its first hit (which need not be its nearest).
         """
+        if self.empty:
+            return []
         f32 = np.float32
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / direction
@@ -258,15 +332,17 @@ class SphereBVH:
 
         d32 = d.astype(f32)
         origin32 = rays[:3]
+        k = self.child.size
 
         def test_leaves(ray, node):
-            """Test (ray, leaf) pairs against their leaves' spheres.
+            """Test (ray, leaf) pairs against their leaves' primitives.
 
             A float32 pass in the traversal's frame over all (LEAF_SIZE, P)
-            (ray, sphere) slots keeps those whose line passes within a padded
-            radius and whose span overlaps [0, to_beat]; padding slots are NaN
-            and never kept.  Only the kept slots, typically a few in ten, are
-            tested with brute force's arithmetic in the scene's precision.
+            (ray, primitive) slots keeps those whose line passes within a
+            padded bounding radius and whose span overlaps [0, to_beat];
+            padding slots are NaN and never kept.  Only the kept slots,
+            typically a few in ten, are tested with brute force's arithmetic
+            in the scene's precision.
             """
             center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, LEAF_SIZE, P)
             oc = center - np.take(origin32, ray, axis=1, mode="wrap")[:, None, :]
@@ -279,24 +355,26 @@ class SphereBVH:
             reach = np.take(self.leaf_reach32, node, axis=1, mode="wrap")  # padded radius
             candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
             candidate &= h - reach <= to_beat.take(ray)
-            slot = np.flatnonzero(candidate)  # j * P + pair for sphere j of pair's leaf
+            slot = np.flatnonzero(candidate)  # j * P + pair for primitive j of pair's leaf
             pair = slot % ray.size
-            sphere = self.leaf_sphere.take(slot // ray.size * self.child.size + node.take(pair))
+            prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))
             ray = ray.take(pair)
-            t = nearest_root(*sphere_roots(self.center.take(sphere, axis=1), self.spheres.radius_squared.take(sphere),
-                                           o.take(ray, axis=1), d.take(ray, axis=1)))
+            t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1))
             ok = np.flatnonzero(is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray)))
-            ray, t, sphere = ray.take(ok), t.take(ok), sphere.take(ok)
-            np.minimum.at(nearest, ray, t)
-            to_beat[ray] = float32_up(nearest.take(ray) - shift.take(ray))
-            found.append((ray_ids.take(ray), t, sphere))
+            ray, t, prim = ray.take(ok), t.take(ok), prim.take(ok)
+            if any_hit:
+                to_beat[ray] = -np.inf  # done: no box is entered before 0
+            else:
+                np.minimum.at(nearest, ray, t)
+                to_beat[ray] = float32_up(nearest.take(ray) - shift.take(ray))
+            found.append((ray_ids.take(ray), t, prim))
 
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_leaves(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2)
-        node = octant * self.child.size  # the root's column in each ray's octant
+        node = octant * k  # the root's column in each ray's octant
         zero = f32(0)
         # (ray, interior node) pairs whose box the ray enters; both children's
         # boxes are tested at once so each level gathers the ray data once
@@ -320,7 +398,7 @@ class SphereBVH:
             is_leaf = self.octant_is_leaf.take(node)
             leaf = np.flatnonzero(is_leaf)
             if leaf.size:
-                test_leaves(ray.take(leaf), node.take(leaf) % self.child.size)  # column -> node
+                test_leaves(ray.take(leaf), node.take(leaf) % k)  # column -> node
                 inner = np.flatnonzero(~is_leaf)
                 ray, node = ray.take(inner), node.take(inner)
         best_t[ray_ids] = nearest

@@ -360,10 +360,11 @@ def _with_flags(scene, args):
         return scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
                                     max_depth=args.max_depth, seed=args.seed)
     except SceneError as e:
-        flag = _FLAG_OF.get(e.path)
-        if flag is None:  # the pixel count: whichever size flags were given
-            flag = " ".join(f for f, v in (("--width", args.width), ("--height", args.height)) if v is not None)
-        raise SceneError(args.scene, flag or "image", e.problem) from None
+        given = {"--width": args.width, "--height": args.height, "--spp": args.spp, "--max-depth": args.max_depth,
+                 "--seed": args.seed}
+        flags = [_FLAG_OF[e.path]] if e.path in _FLAG_OF else ["--width", "--height"]  # else: the pixel count
+        named = " ".join(f"{f} {given[f]}" for f in flags if given[f] is not None)
+        raise SceneError(args.scene, named or "image", e.problem) from None
 
 
 def _write_or_rescue(out: str, film, metadata) -> str | None:

@@ -1,11 +1,9 @@
-"""Spheres and ray-sphere intersection for whole batches of rays.
+"""What every shape shares: the ray's ``T_MIN``, the precision rule, and the
+exact ray-sphere arithmetic.
 
-``SphereSet`` stores the scene's spheres structure-of-arrays and intersects
-``(3, N)`` batches of unit-direction rays against all of them at once, the
-spheres handled in blocks broadcast against the rays so the Python loop runs
-over blocks of spheres, never over rays.  For scenes with many spheres
-``wavefront.accel`` provides a BVH with the same interface and exactly the same
-answers.
+The shapes themselves (spheres, quads, triangles, meshes) and their
+structure-of-arrays sets live in :mod:`wavefront.shapes`; ``wavefront.accel``
+builds one BVH over all of them with exactly the answers of brute force.
 """
 
 from __future__ import annotations
@@ -18,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .transform import Transform, transform_field
 from .validation import SceneError, fail, integer, number, vec3
 from .validation import name as material_name
-from .vecmath import dot, gather
 
 T_MIN = 1e-3  # skip self-intersection at the ray's own origin (shadow acne)
 
@@ -67,6 +65,10 @@ class Sphere:
     ``radius``    a number in [1e-150, 1e150]
     ``material``  the name of a material of the scene (Unicode NFC), or
                   its index in the scene's materials
+    ``transform`` ``None``, a :class:`~wavefront.transform.Transform` or a
+                  scene file's list of steps: translate, rotate and
+                  uniform scale only (anything else would not be a
+                  sphere); applied when the scene is compiled
     ============  ======================================================
 
     Invalid values raise :class:`~wavefront.validation.SceneError` naming the field.
@@ -75,15 +77,14 @@ class Sphere:
     center: tuple[float, float, float]
     radius: float
     material: str | int
+    transform: Transform | None = None
 
     def __post_init__(self):
         set_field = object.__setattr__
         set_field(self, "center", position(self, self.center, "center"))
         set_field(self, "radius", radius(self, self.radius, "radius"))
-        if isinstance(self.material, numbers.Integral) and not isinstance(self.material, bool):
-            set_field(self, "material", integer(self, self.material, "material", low=0))
-        else:
-            set_field(self, "material", material_name(self, self.material, "material"))
+        set_field(self, "material", material_field(self, self.material))
+        set_field(self, "transform", transform_field(self, self.transform, "transform", similarity_only=True))
 
     @classmethod
     def many(cls, centers, radii, materials) -> list[Sphere]:
@@ -122,6 +123,13 @@ def radius(obj, value, path: str) -> float:
                         f"{'overflows' if not math.isfinite(r * r) else 'leaves no room for distances'}); "
                         f"the largest radius is {MAX_COORDINATE:g}")
     return r
+
+
+def material_field(obj, value, path: str = "material") -> str | int:
+    """A shape's material: a name (Unicode NFC) or an index into the scene's materials."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+        return integer(obj, value, path, low=0)
+    return material_name(obj, value, path)
 
 
 def position(obj, value, path: str) -> tuple[float, float, float]:
@@ -174,76 +182,9 @@ def _many_unchecked(centers, radii, materials) -> list[Sphere] | None:
         set_field(s, "center", c)
         set_field(s, "radius", r)
         set_field(s, "material", normal[m])
+        set_field(s, "transform", None)
         append(s)
     return spheres
-
-
-@dataclass(slots=True)
-class Hits:
-    """Nearest hits of a ray batch.
-
-    ``t`` is ``inf`` and ``sphere_idx`` is -1 where a ray escaped.
-    """
-
-    t: np.ndarray  # (N,)
-    sphere_idx: np.ndarray  # (N,) int32
-
-
-class SphereSet:
-    """All spheres of a scene as arrays: ``center (3, M)``, ``radius (M,)``."""
-
-    def __init__(self, center: np.ndarray, radius: np.ndarray, material_idx: np.ndarray, dtype=np.float64):
-        center = np.asarray(center, dtype=np.float64).reshape(3, -1)
-        radius = np.asarray(radius, dtype=np.float64)
-        # derived terms in float64 first, then stored at the render's precision
-        self.dtype = np.dtype(dtype)
-        self.center = np.ascontiguousarray(center, dtype=dtype)
-        self.radius = np.ascontiguousarray(radius, dtype=dtype)
-        self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
-        self.radius_squared = (radius * radius).astype(dtype)
-        self.inverse_radius = (1.0 / radius).astype(dtype)
-
-    def __len__(self) -> int:
-        return self.radius.shape[0]
-
-    def subset(self, idx: np.ndarray) -> SphereSet:
-        """The spheres ``idx``, with the derived terms copied rather than
-        recomputed from rounded centres, so a float32 subset intersects
-        bit for bit as the whole set does."""
-        part = object.__new__(SphereSet)
-        for name, value in vars(self).items():  # every per-sphere array, whatever it is called
-            setattr(part, name, np.ascontiguousarray(value[..., idx]) if isinstance(value, np.ndarray) else value)
-        return part
-
-    def intersect(self, origin: np.ndarray, direction: np.ndarray, t_max=np.inf) -> Hits:
-        """Nearest hit with ``T_MIN < t < t_max`` for every ray.
-
-        Parameters
-        ----------
-        origin, direction : ndarray of shape (3, N)
-            ``direction`` must be unit length.
-        t_max : float or ndarray of shape (N,)
-        """
-        return intersect_brute_force(self, origin, direction, t_max)
-
-    def occluded(self, origin, direction, t_max) -> np.ndarray:
-        """Whether anything lies strictly between ``T_MIN`` and ``t_max``."""
-        return self.intersect(origin, direction, t_max).sphere_idx >= 0
-
-    def surface(self, origin, direction, t, sphere):
-        """Point, normal and front-face flag where rays hit ``sphere`` at ``t``.
-
-        All arguments are for hitting rows only.  The returned normal faces
-        against the ray (the book's ``set_face_normal``); ``front_face`` says
-        whether the ray struck the outside.
-        """
-        d = direction
-        point = origin + t * d
-        outward = (point - gather(self.center, sphere)) * self.inverse_radius.take(sphere)
-        front_face = dot(d, outward) < 0.0
-        sign = 2 * front_face.astype(outward.dtype) - 1  # flip to face the ray; cheaper than a (3, N) where
-        normal = outward * sign
-        return point, normal, front_face, sphere
 
 
 def sphere_roots(center, radius_squared, origin, direction):
@@ -310,32 +251,6 @@ def nearest_root(h, sqrt_disc):
 def is_hit(t):
     """Whether a root from :func:`nearest_root` is a hit (false for inf and NaN)."""
     return t < np.inf
-
-
-def intersect_brute_force(spheres: SphereSet, origin, direction, t_max=np.inf) -> Hits:
-    """Test every ray against every sphere, a block of spheres at a time.
-
-    The nearest sphere of a block is found with a ``min`` reduction and an
-    integer blend (lowest index wins a tie) rather than ``argmin``, which is
-    a slow, branchy loop along the first axis.
-    """
-    n = origin.shape[1]
-    best_t = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,)).copy()
-    best_idx = np.full(n, -1, dtype=np.int64)
-    m = len(spheres)
-    block = max(1, min(m, BLOCK_ELEMENTS // max(n, 1)))
-    for start in range(0, m, block):
-        stop = min(m, start + block)
-        t = nearest_root(*sphere_roots(spheres.center[:, start:stop, None], spheres.radius_squared[start:stop, None],
-                                       origin[:, None, :], direction[:, None, :]))
-        t_block = np.fmin.reduce(t, axis=0)  # fmin: a miss may be NaN
-        # strict: an earlier block keeps a tie; false where nothing was hit
-        closer = t_block < best_t
-        for j in range(stop - start - 1, -1, -1):  # downwards, so the lowest index is written last
-            take = closer & (t[j] == t_block)
-            best_idx += take * (start + j - best_idx)
-        best_t = np.fmin(best_t, t_block)
-    return Hits(escaped_at_inf(best_t, best_idx >= 0, t_max), best_idx.astype(np.int32))
 
 
 def escaped_at_inf(best_t, hit, t_max):

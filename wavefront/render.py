@@ -33,8 +33,9 @@ from functools import cached_property
 import numpy as np
 
 from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
+from .integrators import TRACERS
 from .output import OutputError, check_output_path
-from .path import TraceStats, trace_paths
+from .path import TraceStats
 from .sampling import scene_key
 from .scene import CompiledScene, Scene
 from .units import Job, Unit, UnitPlan
@@ -194,7 +195,7 @@ def refuse_unless_fits(memory: int, need: int, what: str) -> None:
 
 def primitive_count(scene: Scene) -> int:
     """Primitives the acceleration structure will hold."""
-    return len(scene.spheres)
+    return len(scene.spheres) + len(scene.quads) + len(scene.triangles) + sum(len(m) for m in scene.meshes)
 
 
 @dataclass(frozen=True)
@@ -314,18 +315,6 @@ def tune_allocator() -> None:
 
 # --- work done in a worker (or inline) --------------------------------------
 
-INTEGRATORS = {"path": trace_paths}
-
-
-def integrator(name: str):
-    """The trace function of an integrator, from the registry."""
-    if name not in INTEGRATORS and name == "whitted":
-        from .whitted import trace_whitted
-
-        INTEGRATORS["whitted"] = trace_whitted
-    return INTEGRATORS[name]
-
-
 @dataclass
 class _Worker:
     """What a process needs to run tasks: set once per process."""
@@ -384,7 +373,7 @@ def execute(cs: CompiledScene, key, capacity: int, units: list[Unit], should_sto
     # Overflow and NaN are handled by the film (non-finite samples are dropped
     # and counted in the summary), so NumPy's warnings about them are noise.
     with np.errstate(over="ignore", invalid="ignore"):
-        radiance = integrator(scene.render.integrator)(cs, job, key, capacity, stats, should_stop)
+        radiance = TRACERS[scene.render.integrator](cs, job, key, capacity, stats, should_stop)
     if should_stop is not None and should_stop():
         raise RenderInterrupted  # the trace was cut short: this task's samples are incomplete
     return job.reduce(radiance), stats, (os.getpid(), peak_rss())

@@ -33,8 +33,10 @@ import numpy as np
 
 from .background import Background, Sky, Solid
 from .camera import Camera
-from .geometry import Sphere, SphereSet, position, precision_for
+from .geometry import Sphere, position, precision_for
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
+from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
+from .shapes.base import exact_pad
 from .validation import SceneError, color, describe, fail, instance, integer, source_of, string
 
 RGB = tuple[float, float, float]
@@ -119,8 +121,12 @@ class Scene:
     ==============  ===================  =======================================
     field           default              meaning
     ==============  ===================  =======================================
-    ``spheres``     required             list of :class:`Sphere`
+    ``spheres``     ()                   list of :class:`Sphere`
     ``materials``   required             name -> material
+    ``quads``       ()                   list of :class:`~wavefront.shapes.Quad`
+                                         (a box is six quads)
+    ``triangles``   ()                   list of :class:`~wavefront.shapes.Triangle`
+    ``meshes``      ()                   list of :class:`~wavefront.shapes.Mesh`
     ``camera``      ``Camera()``         see :class:`wavefront.camera.Camera`
     ``width``       400                  image width in pixels
     ``height``      225                  image height in pixels
@@ -132,8 +138,8 @@ class Scene:
     ==============  ===================  =======================================
     """
 
-    spheres: list[Sphere]
-    materials: dict[str, Material]
+    spheres: list[Sphere] = field(default_factory=list)
+    materials: dict[str, Material] = field(default_factory=dict)
     camera: Camera = field(default_factory=Camera)
     width: int = 400
     height: int = 225
@@ -142,6 +148,9 @@ class Scene:
     lights: tuple[PointLight, ...] = ()
     ambient: RGB = (0.0, 0.0, 0.0)
     name: str = "scene"
+    quads: list[Quad] = field(default_factory=list)
+    triangles: list[Triangle] = field(default_factory=list)
+    meshes: list[Mesh] = field(default_factory=list)
 
     def __post_init__(self):
         """Check every field and how they fit together; normalise sequences to
@@ -175,16 +184,14 @@ class Scene:
             materials[normal], spelled[normal] = material, key
         set_field(self, "materials", materials)
 
-        spheres = self.spheres
-        if not isinstance(spheres, Sequence) or isinstance(spheres, str):
-            fail(self, "spheres", f"expected a list of Sphere, got {describe(spheres)}")
-        if type(spheres) is not list:
-            spheres = list(spheres)
-        if set(map(type, spheres)) - {Sphere}:
-            i = next(i for i, s in enumerate(spheres) if not isinstance(s, Sphere))
-            instance(self, spheres[i], f"spheres[{i}]", Sphere, "a Sphere")
-        set_field(self, "spheres", spheres)
-        self._check_references(materials, spheres)
+        shapes = {}
+        for key, kind in (("spheres", Sphere), ("quads", Quad), ("triangles", Triangle), ("meshes", Mesh)):
+            shapes[key] = self._shape_list(key, kind)
+            set_field(self, key, shapes[key])
+            self._check_references(materials, key, shapes[key])
+        if not any(shapes.values()):
+            fail(self, "shapes", "the scene has no shapes (give at least one of: spheres, quads, boxes, "
+                                 "triangles, meshes)")
 
         lights = self.lights
         if not isinstance(lights, Sequence) or isinstance(lights, str):
@@ -193,20 +200,32 @@ class Scene:
             instance(self, light, f"lights[{i}]", PointLight, "a PointLight")
         set_field(self, "lights", tuple(lights))
 
-    def _check_references(self, materials: dict, spheres: list[Sphere]) -> None:
-        """Every sphere names a defined material (or indexes one)."""
-        used = set(map(_material_of, spheres))
+    def _shape_list(self, key: str, kind: type) -> list:
+        shapes = getattr(self, key)
+        if not isinstance(shapes, Sequence) or isinstance(shapes, str):
+            fail(self, key, f"expected a list of {kind.__name__}, got {describe(shapes)}")
+        if type(shapes) is not list:
+            shapes = list(shapes)
+        if set(map(type, shapes)) - {kind}:
+            i = next(i for i, s in enumerate(shapes) if not isinstance(s, kind))
+            instance(self, shapes[i], f"{key}[{i}]", kind, f"a {kind.__name__}")
+        return shapes
+
+    def _check_references(self, materials: dict, key: str, shapes: list) -> None:
+        """Every shape names a defined material (or indexes one)."""
+        material_of = _material_of if key == "spheres" else _attribute_material
+        used = set(map(material_of, shapes))
         names = {m for m in used if isinstance(m, str)}
         indices = used - names
         if names <= materials.keys() and all(i < len(materials) for i in indices):
             return
-        for i, sphere in enumerate(spheres):
-            m = sphere.material
+        for i, shape in enumerate(shapes):
+            m = shape.material
             if isinstance(m, str) and m not in materials:
-                fail(self, f"spheres[{i}].material", unknown_material(m, materials))
+                fail(self, f"{key}[{i}].material", unknown_material(m, materials))
             if isinstance(m, int) and m >= len(materials):
-                fail(self, f"spheres[{i}].material", f"material index {m} is out of range "
-                                                     f"(the scene has {len(materials)} materials)")
+                fail(self, f"{key}[{i}].material", f"material index {m} is out of range "
+                                                   f"(the scene has {len(materials)} materials)")
 
     def replace(self, **changes) -> Scene:
         """A copy with ``changes``, validated as a new scene is."""
@@ -244,7 +263,7 @@ class CompiledScene:
     """The scene as arrays for the kernels; built once per render."""
 
     scene: Scene
-    spheres: SphereSet
+    shapes: Intersector  # the Primitives (brute force) or the BVH over them
     materials: MaterialTable
     light_position: np.ndarray  # (3, L)
     light_color: np.ndarray  # (3, L)
@@ -258,27 +277,85 @@ class CompiledScene:
         names = list(scene.materials)
         index = {name: i for i, name in enumerate(names)}
         table = MaterialTable.build([scene.materials[n] for n in names], names, dtype)
-        m = len(scene.spheres)
-        center = np.array([s.center for s in scene.spheres], dtype=np.float64).reshape(m, 3).T
-        radius = np.array([s.radius for s in scene.spheres], dtype=np.float64)
-        material_idx = np.array(
-            [s.material if isinstance(s.material, int) else index[s.material] for s in scene.spheres],
-            dtype=np.int32,
-        )
-        spheres = build_intersector(SphereSet(center, radius, material_idx, dtype), scene_extent(scene))
+        extent = scene_extent(scene)
+        shapes = build_intersector(compile_shapes(scene, index, dtype, extent), extent)
         nl = len(scene.lights)
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
-        return cls(scene, spheres, table, light_position, light_color, dtype)
+        return cls(scene, shapes, table, light_position, light_color, dtype)
+
+
+def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) -> Primitives:
+    """Every shape of ``scene`` in world space (each transform applied once, here) as one :class:`Primitives`."""
+    def material(shape):
+        return shape.material if isinstance(shape.material, int) else index[shape.material]
+
+    spheres = SphereSet.build(scene.spheres, [material(s) for s in scene.spheres], dtype)
+    quads = QuadSet.build(scene.quads, [material(q) for q in scene.quads], dtype, extent)
+    # loose triangles and every mesh's triangles form one triangle set
+    parts, materials = [], []
+    if scene.triangles:
+        v = np.array([t.world() for t in scene.triangles], dtype=np.float64)  # (T, 3 vertices, 3)
+        parts.append(dict(v0=v[:, 0].T, v1=v[:, 1].T, v2=v[:, 2].T, vertex_normal=None, vertex_uv=None))
+        materials.append(np.array([material(t) for t in scene.triangles], dtype=np.int32))
+    for m in scene.meshes:
+        parts.append(mesh_triangles(m))
+        materials.append(np.full(len(m), material(m), dtype=np.int32))
+    material_idx = np.concatenate(materials) if materials else np.zeros(0, np.int32)
+    joined = {key: np.concatenate([p[key] for p in parts], axis=-1) if parts else np.zeros((3, 0))
+              for key in ("v0", "v1", "v2")}
+    normals = uvs = None
+    if any(p["vertex_normal"] is not None for p in parts):  # flat triangles repeat their face normal
+        normals = np.concatenate([p["vertex_normal"] if p["vertex_normal"] is not None else
+                                  np.broadcast_to(_face_normal(p), (3, 3, p["v0"].shape[1])) for p in parts], axis=-1)
+    if any(p["vertex_uv"] is not None for p in parts):  # without file uv, the barycentrics
+        corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[:, :, None]
+        uvs = np.concatenate([p["vertex_uv"] if p["vertex_uv"] is not None else
+                              np.broadcast_to(corners, (3, 2, p["v0"].shape[1])) for p in parts], axis=-1)
+    triangles = TriangleSet(joined["v0"], joined["v1"], joined["v2"], material_idx, dtype, extent, normals, uvs)
+    return Primitives([spheres, quads, triangles], dtype, exact_pad(dtype, extent))
+
+
+def _face_normal(part: dict) -> np.ndarray:
+    n = np.cross(part["v1"] - part["v0"], part["v2"] - part["v0"], axis=0)
+    return n / np.linalg.norm(n, axis=0)
+
+
+def shape_points(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """World-space points and radii that bound every shape: ``(P, 3)``, ``(P,)``
+    (sphere centres with their radii; quad corners and vertices with 0)."""
+    from .shapes.sphere import world_sphere
+
+    points, radii = [np.zeros((0, 3))], [np.zeros(0)]
+    if scene.spheres:
+        world = [world_sphere(s) for s in scene.spheres]
+        points.append(np.array([c for c, _ in world]))
+        radii.append(np.array([r for _, r in world]))
+    for q in scene.quads:  # per scene object
+        c, u, v = q.world()
+        points.append(np.array([c, c + u, c + v, c + u + v]))
+        radii.append(np.zeros(4))
+    if scene.triangles:
+        points.append(np.concatenate([t.world() for t in scene.triangles]))
+    for m in scene.meshes:
+        vertices = m.vertices if m.transform is None else m.transform.points(m.vertices.T).T
+        points.append(vertices)
+    points = np.concatenate(points)
+    radii.append(np.zeros(points.shape[0] - sum(r.size for r in radii)))
+    return points, np.concatenate(radii)
 
 
 def unknown_material(name: str, materials) -> str:
-    """The problem of a sphere whose material ``name`` is not among ``materials``."""
+    """The problem of a shape whose material ``name`` is not among ``materials``."""
     return f"unknown material {name!r} (defined: {', '.join(sorted(materials)) or 'none'})"
 
 
 MATERIAL_TYPES = (Lambertian, Metal, Dielectric, Emissive, Phong)
 _material_of = Sphere.material.__get__  # slot getter: map() over a million spheres at C speed
+
+
+def _attribute_material(shape):
+    return shape.material
 
 
 def scene_extent(scene: Scene) -> float:
@@ -290,18 +367,26 @@ def scene_extent(scene: Scene) -> float:
     focus = cam.focus_dist if cam.focus_dist is not None else \
         float(np.linalg.norm(np.subtract(cam.look_at, cam.look_from, dtype=np.float64)))
     points[0] += abs(focus) * math.tan(math.radians(min(cam.defocus_angle, 179.0) / 2.0))
-    center = np.array([s.center for s in scene.spheres], dtype=np.float64).reshape(-1, 3)
-    radius = np.array([s.radius for s in scene.spheres], dtype=np.float64)
+    center, radius = shape_points(scene)
     reach = np.linalg.norm(center, axis=1) + radius
     return float(max(points.max(), reach.max(initial=0.0)))
 
 
 def precision_of(scene: Scene) -> np.dtype:
-    """The floating-point type the wavefront runs in (see ``geometry.FLOAT32_EXTENT``)."""
+    """The floating-point type the wavefront runs in (see ``geometry.FLOAT32_EXTENT``).
+
+    ``auto`` keeps float64 for any scene with quads, triangles or meshes: their
+    exact tests divide by a determinant that float32 would leave with too few
+    digits on slivers and grazing rays.
+    """
     choice = scene.render.precision
     if choice != "auto":
         return np.dtype(choice)
-    return precision_for([s.radius for s in scene.spheres], scene_extent(scene))
+    if scene.quads or scene.triangles or scene.meshes:
+        return np.dtype(np.float64)
+    from .shapes.sphere import world_sphere
+
+    return precision_for([world_sphere(s)[1] for s in scene.spheres], scene_extent(scene))
 
 
 def turntable(scene: Scene, frame: int, frames: int) -> Scene:

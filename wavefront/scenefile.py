@@ -43,6 +43,9 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
     MATERIAL_TYPES, MAX_DEPTH, MAX_PIXELS, MAX_SAMPLES_PER_PIXEL, MAX_SEED, PointLight, RenderSettings, Scene,
     unknown_material,
 )
+from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
+from .shapes import mesh as mesh_files
+from .shapes.mesh import mesh_fields
 from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
 
 __all__ = ["MAX_DEPTH", "MAX_PIXELS", "MAX_SAMPLES_PER_PIXEL", "MAX_SEED", "SceneError", "SceneWarning",
@@ -521,8 +524,9 @@ def _object(source: str, value, path: str, cls, extra=frozenset()):
 
 _MATERIALS = {cls.kind: cls for cls in MATERIAL_TYPES}
 _BACKGROUNDS = {cls.type: cls for cls in (Sky, Solid)}
-_SPHERE_KEYS = frozenset(f.name for f in dataclasses.fields(Sphere))
-_SCENE_PATHS = {"width": "image.width", "height": "image.height", "": "image"}  # Scene's names -> YAML paths
+_SPHERE_KEYS = frozenset({"center", "radius", "material"})  # the bulk path: spheres without transforms
+# Scene's names -> YAML paths ("shapes" is the scene as a whole)
+_SCENE_PATHS = {"width": "image.width", "height": "image.height", "": "image", "shapes": ""}
 
 
 def _typed(source: str, value, path: str, kinds: dict, default=None):
@@ -544,7 +548,7 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
 
 def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: bool) -> Scene:
     top = _mapping(source, doc, "", {"name", "image", "camera", "render", "background", "materials",
-                                     "spheres", "lights", "ambient"}, {"spheres"})
+                                     "spheres", "quads", "boxes", "triangles", "meshes", "lights", "ambient"})
     image = _mapping(source, top.get("image"), "image", {"width", "height"})
     render = _object(source, top.get("render"), "render", RenderSettings)
     camera = _object(source, top.get("camera"), "camera", Camera)
@@ -560,12 +564,17 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
             raise SceneError(source, "materials", f"material names must be strings, got {describe(key)}")
         materials[key] = _typed(source, spec, f"materials.{key}", _MATERIALS)
 
-    spheres_doc = top["spheres"]
+    defined = {unicodedata.normalize("NFC", key) for key in materials}
+    spheres_doc = top.get("spheres")
     if consume:  # load_scene's document: let the per-sphere mappings go as soon as they are read
         top["spheres"] = None
-    defined = {unicodedata.normalize("NFC", key) for key in materials}
     spheres = _spheres(source, spheres_doc if spheres_doc is not None else [], defined, consume)
     del spheres_doc
+    quads = _shapes(source, top.get("quads"), "quads", Quad, defined)
+    for box in _shapes(source, top.get("boxes"), "boxes", Box, defined):
+        quads.extend(box.quads())
+    triangles = _shapes(source, top.get("triangles"), "triangles", Triangle, defined)
+    meshes = _meshes(source, top.get("meshes"), defined)
 
     lights_doc = top.get("lights") or []
     if not isinstance(lights_doc, list):
@@ -580,8 +589,9 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
             raise e.within(source, path) from None
         lights.append(_object(source, spec, path, PointLight, extra={"type"}))
 
-    fields = {"spheres": spheres, "materials": materials, "camera": camera, "render": render,
-              "background": background, "lights": tuple(lights)}
+    fields = {"spheres": spheres, "quads": quads, "triangles": triangles, "meshes": meshes,
+              "materials": materials, "camera": camera, "render": render, "background": background,
+              "lights": tuple(lights)}
     for key in ("width", "height"):
         if key in image:
             fields[key] = image[key]
@@ -593,11 +603,12 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         scene = Scene(**fields)
     except SceneError as e:
         path, _, rest = e.path.partition(".")
-        raise SceneError(source, _SCENE_PATHS.get(path, path) + (f".{rest}" if rest else ""), e.problem) from None
+        path = _SCENE_PATHS.get(path, path)
+        raise SceneError(source, path + (f".{rest}" if rest and path else rest), e.problem) from None
 
     if render.integrator == "path" and (lights or "ambient" in top):
         warnings.warn(f"{source}: lights/ambient are ignored by the path integrator "
-                      "(it is lit by emissive spheres and the background)", SceneWarning, stacklevel=3)
+                      "(it is lit by emissive shapes and the background)", SceneWarning, stacklevel=3)
     return scene
 
 
@@ -623,12 +634,65 @@ def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere
         if unknown:
             raise SceneError(source, f"spheres[{end}].material", unknown_material(materials[end], defined))
         return spheres
-    allowed, required = _fields(Sphere)
-    spheres = []
+    return _shapes(source, docs, "spheres", Sphere, defined)
+
+
+def _shapes(source: str, docs, key: str, cls, defined: set[str]) -> list:
+    """A list of shapes of one kind, each built (and so checked) by its class,
+    its material checked against the scene's."""
+    if docs is None:
+        return []
+    if not isinstance(docs, list):
+        raise SceneError(source, key, f"expected a list, got {describe(docs)}")
+    allowed, required = _fields(cls)
+    shapes = []
     for i, spec in enumerate(docs):
-        path = f"spheres[{i}]"
-        sphere = _build(source, path, Sphere, _mapping(source, spec, path, allowed, required))
-        if isinstance(sphere.material, str) and sphere.material not in defined:
-            raise SceneError(source, f"{path}.material", unknown_material(sphere.material, defined))
-        spheres.append(sphere)
-    return spheres
+        path = f"{key}[{i}]"
+        shape = _build(source, path, cls, _mapping(source, spec, path, allowed, required))
+        if isinstance(shape.material, str) and shape.material not in defined:
+            raise SceneError(source, f"{path}.material", unknown_material(shape.material, defined))
+        shapes.append(shape)
+    return shapes
+
+
+_MESH_KEYS = {"file", "material", "smooth", "transform"}
+
+
+def _meshes(source: str, docs, defined: set[str]) -> list[Mesh]:
+    """Meshes read from files by trimesh, paths relative to the scene file.
+
+    Every problem with a file names the scene file, the YAML path and the
+    mesh file; degenerate faces are dropped with one warning counting them.
+    The face limit is for the whole scene, so many meshes cannot add up to
+    more than one may hold.
+    """
+    if docs is None:
+        return []
+    if not isinstance(docs, list):
+        raise SceneError(source, "meshes", f"expected a list, got {describe(docs)}")
+    base = "" if source.startswith("<") else os.path.dirname(source)
+    meshes, total = [], 0
+    for i, spec in enumerate(docs):
+        path = f"meshes[{i}]"
+        spec = _mapping(source, spec, path, _MESH_KEYS, {"file", "material"})
+        try:  # what can be checked before the file is read, by the Mesh's own rules
+            name = string(Mesh, spec["file"], "file")
+            mesh_fields(Mesh, spec)
+        except SceneError as e:
+            raise e.within(source, path) from None
+        file = os.path.join(base, name)
+        try:
+            data = read_mesh(file, max_faces=mesh_files.MAX_MESH_FACES - total)
+        except MeshError as e:
+            raise SceneError(source, f"{path}.file", f"{file}: {e}") from None
+        total += data["faces"].shape[0]
+        if data["dropped"]:
+            warnings.warn(SceneWarning(f"{source}: {path}.file: {file}: dropped {data['dropped']} degenerate "
+                                       "(zero-area) triangles"), stacklevel=3)
+        fields = {k: v for k, v in spec.items() if k != "file"}
+        mesh = _build(source, path, Mesh, fields, vertices=data["vertices"], faces=data["faces"],
+                      vertex_normals=data["vertex_normals"], uv=data["uv"], file=file, dropped=data["dropped"])
+        if isinstance(mesh.material, str) and mesh.material not in defined:
+            raise SceneError(source, f"{path}.material", unknown_material(mesh.material, defined))
+        meshes.append(mesh)
+    return meshes

@@ -21,7 +21,8 @@ material kinds, so that any scene renders sensibly:
 * dielectric: splits into a reflected ray weighted by Schlick's reflectance
   and a refracted ray weighted by the rest (all reflected under total
   internal reflection), both followed;
-* emissive: its colour, and the ray ends.
+* emissive: its colour seen from the front (one-sided, as under ``path``),
+  black from behind, and the ray ends.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ def phong_local(cs: CompiledScene, point, normal, view, material) -> np.ndarray:
         to_light = cs.light_position[:, k:k + 1] - point
         distance = np.sqrt(dot(to_light, to_light))
         l = to_light / distance
-        lit = ~cs.spheres.occluded(point, l, distance)
+        lit = ~cs.shapes.occluded(point, l, distance)  # any-hit: shadow rays stop at their first hit
         n_dot_l = dot(normal, l)
         r = 2.0 * n_dot_l * normal - l
         highlight = np.maximum(0.0, dot(r, view)) ** shininess
@@ -87,24 +88,25 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
             if should_stop is not None and should_stop():
                 return radiance
             stats.segments += len(live)
-            hits = cs.spheres.intersect(live.origin, live.direction)
-            hit = hits.sphere_idx >= 0
+            hits = cs.shapes.intersect(live.origin, live.direction)
+            hit = hits.primitive_idx >= 0
             esc = np.flatnonzero(~hit)
             if esc.size:
                 add(live.slot[esc], live.throughput[:, esc] * scene.background.radiance(live.direction[:, esc]))
             hit_idx = np.flatnonzero(hit)
             if hit_idx.size == 0:
                 break
-            point, normal, front_face, sphere = cs.spheres.surface(
-                live.origin[:, hit_idx], live.direction[:, hit_idx], hits.t[hit_idx], hits.sphere_idx[hit_idx])
-            material = cs.spheres.material_idx[sphere]
+            surface = cs.shapes.surface(live.origin[:, hit_idx], live.direction[:, hit_idx], hits.t[hit_idx],
+                                        hits.primitive_idx[hit_idx])
+            point, normal, front_face, material = surface.point, surface.normal, surface.front_face, surface.material_idx
             kind = t.kind[material]
             d = live.direction[:, hit_idx]
             weight = live.throughput[:, hit_idx]
             slot = live.slot[hit_idx]
 
-            glows = kind == emissive
-            add(slot[glows], weight[:, glows] * t.emission[:, material[glows]])
+            glows = kind == emissive  # emission is one-sided: only the front face glows, but any face ends the ray
+            shines = glows & front_face
+            add(slot[shines], weight[:, shines] * t.emission[:, material[shines]])
             glass = kind == dielectric
             shaded = ~(glows | glass)
             add(slot[shaded], weight[:, shaded] * phong_local(

@@ -1,0 +1,212 @@
+"""Scene files with quads, boxes, triangles, meshes and transforms: the format
+loads as documented, and every bad input is one message naming the scene
+file, the YAML path and the problem (and the mesh file where it applies)."""
+
+import copy
+import math
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from wavefront import SceneError, SceneWarning, load_scene, scene_from_dict
+from wavefront.shapes import mesh as mesh_files
+
+from .test_furnace import SCENES
+
+BASE = {
+    "materials": {"m": {"type": "lambertian"}, "lamp": {"type": "emissive", "color": [4, 4, 4]}},
+    "quads": [{"corner": [0, 0, 0], "u": [1, 0, 0], "v": [0, 1, 0], "material": "m"}],
+    "boxes": [{"min": [0, 0, 0], "max": [1, 2, 3], "material": "m",
+               "transform": [{"rotate": {"axis": [0, 1, 0], "angle": 15}}, {"translate": [1, 0, 2]}]}],
+    "triangles": [{"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "material": "m"}],
+    "spheres": [{"center": [0, 0, -1], "radius": 0.5, "material": "m", "transform": [{"scale": 2}]}],
+}
+
+
+def with_value(path, value, doc=BASE):
+    doc = copy.deepcopy(doc)
+    keys = path.replace("[", ".").replace("]", "").split(".")
+    node = doc
+    for k in keys[:-1]:
+        node = node[int(k)] if isinstance(node, list) else node[k]
+    node[int(keys[-1]) if isinstance(node, list) else keys[-1]] = value
+    return doc
+
+
+def test_every_shape_kind_loads():
+    scene = scene_from_dict(BASE)
+    assert len(scene.quads) == 1 + 6  # a box is six quads
+    assert len(scene.triangles) == 1 and len(scene.spheres) == 1
+    center, radius = scene.spheres[0].transform.points(np.zeros((3, 1))), scene.spheres[0].transform.uniform_scale()
+    assert radius == 2 and np.allclose(center, 0)
+
+
+def test_box_faces_point_outwards():
+    scene = scene_from_dict({"materials": BASE["materials"], "boxes": [{"min": [0, 0, 0], "max": [1, 2, 3], "material": "m"}]})
+    centre = np.array([0.5, 1.0, 1.5])
+    for q in scene.quads:
+        corner, u, v = (np.asarray(x, float) for x in (q.corner, q.u, q.v))
+        face_centre = corner + 0.5 * u + 0.5 * v
+        assert np.dot(np.cross(u, v), face_centre - centre) > 0
+
+
+CASES = [
+    ("quads[0].v", [2, 0, 0], "quads[0]", "degenerate quad"),
+    ("quads[0].u", [0, 0, 0], "quads[0]", "degenerate quad"),
+    ("quads[0].u", [0, float("nan"), 0], "quads[0].u[1]", "finite"),
+    ("quads[0].material", "nope", "quads[0].material", "unknown material"),
+    ("quads[0].colour", 1, "quads[0].colour", "unknown key"),
+    ("triangles[0].vertices", [[0, 0, 0], [1, 1, 1], [2, 2, 2]], "triangles[0].vertices", "zero-area"),
+    ("triangles[0].vertices", [[0, 0, 0], [0, 0, 0], [0, 1, 0]], "triangles[0].vertices", "zero-area"),
+    ("triangles[0].vertices", [[0, 0, 0], [1, 0, 0]], "triangles[0].vertices", "3 points"),
+    ("triangles[0].vertices", [[0, 0, 0], [1, 0, float("inf")], [0, 1, 0]], "triangles[0].vertices[1][2]", "finite"),
+    ("boxes[0].max", [1, 0, 3], "boxes[0].max", "must exceed min"),
+    ("boxes[0].transform", [{"rotate": {"axis": [0, 0, 0], "angle": 15}}], "boxes[0].transform[0].rotate.axis",
+     "must not be zero"),
+    ("boxes[0].transform", [{"rotate": {"axis": [0, 1, 0]}}], "boxes[0].transform[0].rotate.angle", "missing"),
+    ("boxes[0].transform", [{"translate": [0, float("nan"), 0]}], "boxes[0].transform[0].translate[1]", "finite"),
+    ("boxes[0].transform", [{"scale": 0}], "boxes[0].transform[0].scale", "must not be zero"),
+    ("boxes[0].transform", [{"shear": 1}], "boxes[0].transform[0].shear", "unknown key"),
+    ("boxes[0].transform", [{"scale": 2, "translate": [0, 0, 0]}], "boxes[0].transform[0]", "exactly one"),
+    ("boxes[0].transform", {"scale": 2}, "boxes[0].transform", "list of steps"),
+    ("spheres[0].transform", [{"scale": [1, 2, 1]}], "spheres[0].transform[0].scale", "uniformly"),
+    ("spheres[0].transform", [{"rotate": {"axis": [1, 0, 0], "angle": 30}}, {"scale": [1, 1, 3]}],
+     "spheres[0].transform[1].scale", "uniformly"),
+    ("spheres[0].transform", [{"scale": float("inf")}], "spheres[0].transform[0].scale", "finite"),
+    ("quads", {"corner": 1}, "quads", "expected a list"),
+    ("meshes", [{"material": "m"}], "meshes[0].file", "missing"),
+    ("meshes", [{"file": "x.ply", "material": "m", "smooth": "yes"}], "meshes[0].smooth", "true or false"),
+]
+
+
+@pytest.mark.parametrize("path,value,where,problem", CASES, ids=[c[2] + ":" + c[3] for c in CASES])
+def test_bad_shape_is_named_by_yaml_path(path, value, where, problem):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(with_value(path, value), source="bad.yaml")
+    message = str(e.value)
+    assert message.startswith(f"bad.yaml: {where}: "), message
+    assert problem in message and "\n" not in message
+
+
+# -- meshes ------------------------------------------------------------------
+
+def mesh_scene(tmp_path, name, data=None, mesh=None, **extra):
+    """A scene file in tmp_path whose only shape is the mesh file ``name``."""
+    if mesh is not None:
+        mesh.export(tmp_path / name)
+    elif data is not None:
+        (tmp_path / name).write_bytes(data)
+    spec = {"file": name, "material": "m", **extra}
+    text = ("materials: {m: {type: lambertian}}\n"
+            f"meshes:\n  - {spec}\n".replace("'", '"'))
+    path = tmp_path / "scene.yaml"
+    path.write_text(text)
+    return path
+
+
+def refused(path):
+    with pytest.raises(SceneError) as e:
+        load_scene(path)
+    return str(e.value)
+
+
+@pytest.mark.parametrize("ext", ["ply", "obj", "stl", "off", "glb"])
+def test_a_mesh_loads_from_every_format(tmp_path, ext):
+    scene = load_scene(mesh_scene(tmp_path, f"box.{ext}", mesh=trimesh.creation.box()))
+    assert len(scene.meshes) == 1 and len(scene.meshes[0]) == 12
+
+
+BAD_MESHES = [
+    ("missing.ply", None, "cannot read"),
+    ("empty.ply", b"", "empty"),
+    ("garbage.ply", b"this is not a ply file\n", "cannot be read as PLY"),
+    ("garbage.obj", b"hello world\n", "no triangles"),
+    ("nan.obj", b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+    ("range.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                  b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
+     "out of range"),
+    ("flat.obj", b"v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n", "only degenerate"),
+    ("huge.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\nproperty float x\n"
+                 b"property float y\nproperty float z\nend_header\n", "declares 1000000000000 vertex"),
+    ("model.xyz", b"1 2 3\n", "unknown mesh format"),
+]
+
+
+@pytest.mark.parametrize("name,data,problem", BAD_MESHES, ids=[b[0] for b in BAD_MESHES])
+def test_bad_mesh_file_names_scene_path_and_mesh(tmp_path, name, data, problem):
+    scene = mesh_scene(tmp_path, name, data=data)
+    message = refused(scene)
+    assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / name}: "), message
+    assert problem in message and "\n" not in message
+
+
+def test_a_directory_is_not_a_mesh(tmp_path):
+    (tmp_path / "dir.ply").mkdir()
+    assert "cannot read" in refused(mesh_scene(tmp_path, "dir.ply"))
+
+
+def test_an_oversized_mesh_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    scene = mesh_scene(tmp_path, "box.ply", mesh=trimesh.creation.box())
+    monkeypatch.setattr(mesh_files, "MAX_MESH_BYTES", 100)
+    assert "the limit is 100" in refused(scene)
+
+
+def test_too_many_faces_are_refused(tmp_path, monkeypatch):
+    scene = mesh_scene(tmp_path, "box.ply", mesh=trimesh.creation.box())
+    monkeypatch.setattr(mesh_files, "MAX_MESH_FACES", 11)
+    assert "the limit is" in refused(scene)
+
+
+def test_degenerate_faces_in_a_mesh_are_dropped_with_one_warning(tmp_path):
+    data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 2 0\nf 1 2 3\nf 1 1 2\nf 1 3 3\nf 2 2 2\n"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = load_scene(mesh_scene(tmp_path, "some.obj", data=data))
+    mine = [w for w in caught if issubclass(w.category, SceneWarning)]
+    assert len(mine) == 1 and "dropped 3 degenerate" in str(mine[0].message)
+    assert "meshes[0].file" in str(mine[0].message)
+    assert len(scene.meshes[0]) == 1
+
+
+def test_mesh_paths_are_relative_to_the_scene_file(tmp_path):
+    (tmp_path / "models").mkdir()
+    trimesh.creation.box().export(tmp_path / "models" / "b.ply")
+    scene = mesh_scene(tmp_path, "models/b.ply")
+    assert len(load_scene(scene).meshes[0]) == 12
+
+
+def test_cli_refuses_a_bad_mesh_with_status_2_and_writes_nothing(tmp_path):
+    scene = mesh_scene(tmp_path, "broken.ply", data=b"ply\nnonsense\n")
+    out = tmp_path / "out.png"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", str(scene), "-o", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "meshes[0].file" in lines[0] and "broken.ply" in lines[0], r.stderr
+    assert "Traceback" not in r.stderr and not out.exists()
+
+
+@pytest.mark.parametrize("name", ["cornell_box", "quads", "mesh"])
+def test_new_example_scenes_load(name):
+    scene = load_scene(SCENES / f"{name}.yaml")
+    assert scene.quads or scene.meshes
+
+
+def test_cornell_box_is_the_books():
+    scene = load_scene(SCENES / "cornell_box.yaml")
+    light = [q for q in scene.quads if q.material == "light"]
+    assert len(light) == 1 and light[0].corner == (343, 554, 332)
+    normal = np.cross(light[0].u, light[0].v)
+    assert normal[1] < 0 and normal[0] == normal[2] == 0  # shines down into the room
+    assert len(scene.quads) == 5 + 1 + 12
+    assert math.isclose(scene.materials["light"].color[0], 15)
+
+
+def test_an_obj_with_too_many_faces_is_refused_before_parsing(tmp_path, monkeypatch):
+    monkeypatch.setattr(mesh_files, "MAX_MESH_FACES", 5)
+    data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 6
+    assert "has more than 5 faces" in refused(mesh_scene(tmp_path, "many.obj", data=data))

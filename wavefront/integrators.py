@@ -1,0 +1,16 @@
+"""The integrators by name: a scene's ``render.integrator`` picks its trace function here.
+
+Each trace function takes ``(compiled_scene, job, key, capacity, stats,
+should_stop)`` and returns the job's per-sample radiance ``(3, job.size)``.
+A new integrator is one module and one entry below.
+"""
+
+from __future__ import annotations
+
+from .path import trace_paths
+from .whitted import trace_whitted
+
+TRACERS = {
+    "path": trace_paths,  # backward path tracing (RTOW books 1-3)
+    "whitted": trace_whitted,  # Whitted ray tracing with Phong shading and shadow rays
+}

@@ -1,0 +1,214 @@
+"""Triangle meshes read from files by trimesh (OBJ, PLY, STL, glTF/GLB, OFF).
+
+wavefront never parses mesh formats itself; it bounds what trimesh is given
+(the file's size before a byte is read, the element counts a PLY header
+declares, the number of faces after loading) and checks what comes back
+(finite vertices, indices in range), so a hostile or broken file is refused
+with one message instead of exhausting memory or crashing later.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry import MAX_COORDINATE, material_field
+from ..transform import Transform, transform_field
+from ..validation import describe, fail
+
+# A 1M-triangle binary PLY is ~20 MB and as OBJ ~60 MB; 512 MiB leaves room
+# for large models while refusing a 10 GB file before reading it.
+MAX_MESH_BYTES = 512 * 1024 * 1024
+# Faces per mesh: each costs ~0.5 KB once compiled with its BVH share, so
+# 8 M faces is ~4 GB, the most a renderer on one workstation should attempt.
+MAX_MESH_FACES = 8_000_000
+# Formats trimesh reads that a scene may name, by file extension.
+FORMATS = ("obj", "ply", "stl", "glb", "gltf", "off")
+
+
+class MeshError(ValueError):
+    """A mesh file cannot be used; the message is the problem only (the
+    scene loader adds the scene file, the YAML path and the mesh file)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh as loaded: object-space arrays, a material and a transform.
+
+    ``vertices (V, 3)``, ``faces (F, 3)`` indices into them, optional
+    ``vertex_normals (V, 3)`` (used when ``smooth``) and ``uv (V, 2)``.
+    Compared by identity (NumPy arrays have no single truth value).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    material: str | int
+    smooth: bool = False
+    transform: Transform | None = None
+    vertex_normals: np.ndarray | None = None
+    uv: np.ndarray | None = None
+    file: str = ""
+    dropped: int = field(default=0)  # degenerate faces left out at load time
+
+    def __post_init__(self):
+        """The arrays' shapes and values are checked in bulk (one pass each)."""
+        set_field = object.__setattr__
+        vertices = _array(self, self.vertices, "vertices", np.float64, 3)
+        if not (np.abs(vertices) <= MAX_COORDINATE).all():
+            fail(self, "vertices", "has NaN, infinite or out-of-range coordinates")
+        faces = _array(self, self.faces, "faces", np.int64, 3)
+        if faces.shape[0] == 0:
+            fail(self, "faces", "has no triangles")
+        if faces.min() < 0 or faces.max() >= vertices.shape[0]:
+            fail(self, "faces", f"has vertex indices out of range (there are {vertices.shape[0]} vertices)")
+        set_field(self, "vertices", vertices)
+        set_field(self, "faces", faces)
+        for key, width in (("vertex_normals", 3), ("uv", 2)):
+            value = getattr(self, key)
+            if value is not None:
+                value = _array(self, value, key, np.float64, width)
+                if value.shape[0] != vertices.shape[0] or not np.isfinite(value).all():
+                    fail(self, key, f"must be finite and have one row per vertex ({vertices.shape[0]})")
+                set_field(self, key, value)
+        for key, value in mesh_fields(self, {"material": self.material, "smooth": self.smooth,
+                                             "transform": self.transform}).items():
+            set_field(self, key, value)
+
+    def __len__(self) -> int:
+        return self.faces.shape[0]
+
+
+def mesh_fields(obj, spec: dict) -> dict:
+    """A mesh's ``material``, ``smooth`` and ``transform`` checked (the scene
+    loader checks them before reading the file)."""
+    smooth = spec.get("smooth", False)
+    if not isinstance(smooth, (bool, np.bool_)):
+        fail(obj, "smooth", f"expected true or false, got {describe(smooth)}")
+    return {"material": material_field(obj, spec["material"]), "smooth": bool(smooth),
+            "transform": transform_field(obj, spec.get("transform"), "transform")}
+
+
+def _array(obj, value, path: str, dtype, width: int) -> np.ndarray:
+    """``value`` as a C-contiguous ``(N, width)`` array of ``dtype``, or a SceneError."""
+    try:
+        a = np.asarray(value)
+        if a.dtype.kind not in ("f", "i", "u") or (np.dtype(dtype).kind == "i" and a.dtype.kind == "f"):
+            raise ValueError
+        a = np.ascontiguousarray(a, dtype=dtype)
+    except (ValueError, TypeError, OverflowError):
+        fail(obj, path, f"expected an array of numbers of shape (N, {width}), got {describe(value)}")
+    if a.ndim != 2 or a.shape[1] != width:
+        fail(obj, path, f"expected shape (N, {width}), got {a.shape}")
+    return a
+
+
+def _check_ply_header(head: bytes, max_faces: int) -> None:
+    """Refuse PLY element counts beyond the limits before trimesh allocates for them."""
+    end = head.find(b"end_header")
+    header = head[:end if end >= 0 else len(head)]
+    for name, count in re.findall(rb"element\s+(\w+)\s+(\d+)", header):
+        if int(count) > 3 * max_faces:
+            raise MeshError(f"declares {int(count)} {name.decode(errors='replace')} elements; "
+                            f"the limit is {3 * max_faces}")
+
+
+def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None = None) -> dict:
+    """Read a mesh file into plain arrays, bounded and checked.
+
+    Returns
+    -------
+    dict with ``vertices (V, 3)`` float64, ``faces (F, 3)`` int64, ``vertex_normals
+    (V, 3)`` or None, ``uv (V, 2)`` or None, and ``dropped``, the number of
+    degenerate (zero-area) faces left out.
+
+    Raises
+    ------
+    MeshError
+    """
+    import trimesh  # the standard Python mesh reader; imported only when a scene has meshes
+
+    max_bytes = MAX_MESH_BYTES if max_bytes is None else max_bytes
+    max_faces = MAX_MESH_FACES if max_faces is None else max_faces
+    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    if ext not in FORMATS:
+        raise MeshError(f"unknown mesh format {ext!r} (expected one of: {', '.join(FORMATS)})")
+    try:
+        size = os.stat(path).st_size
+        if size > max_bytes:
+            raise MeshError(f"file is {size} bytes; the limit is {max_bytes}")
+        with open(path, "rb") as f:
+            data = f.read(max_bytes + 1)  # a file growing after the stat is still bounded
+    except OSError as e:
+        raise MeshError(f"cannot read: {e.strerror or e}") from None
+    if len(data) > max_bytes:
+        raise MeshError(f"file is more than {max_bytes} bytes")
+    if not data.strip():
+        raise MeshError("the file is empty")
+    if ext == "ply":
+        _check_ply_header(data[:65536], max_faces)
+    elif ext == "obj" and data.count(b"\nf ") > max_faces:  # a face a line: counted before trimesh builds them
+        raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type=ext, force="mesh", process=False)
+        vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    except MemoryError:
+        raise MeshError("too large to load") from None
+    except Exception as e:  # trimesh reports malformed files with many exception types
+        text = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise MeshError(f"cannot be read as {ext.upper()}: {text[:200]}") from None
+    del data
+    if faces.shape[0] == 0:
+        raise MeshError("has no triangles")
+    if faces.shape[0] > max_faces:
+        raise MeshError(f"has {faces.shape[0]} triangles; the limit is {max_faces}")
+    if not np.isfinite(vertices).all():
+        raise MeshError("has NaN or infinite vertex coordinates")
+    if faces.min() < 0 or faces.max() >= vertices.shape[0]:
+        raise MeshError(f"has face indices out of range (it has {vertices.shape[0]} vertices)")
+    normals = uv = None
+    try:
+        normals = np.asarray(mesh.vertex_normals, dtype=np.float64).reshape(-1, 3)
+        visual_uv = getattr(mesh.visual, "uv", None)
+        if visual_uv is not None and len(visual_uv) == len(vertices):
+            uv = np.asarray(visual_uv, dtype=np.float64).reshape(-1, 2)
+    except Exception:  # optional attributes; a mesh without them is still a mesh
+        pass
+    if normals is not None and not np.isfinite(normals).all():
+        normals = None
+    if uv is not None and not np.isfinite(uv).all():
+        uv = None
+    v = vertices.T
+    area2 = np.linalg.norm(np.cross(v[:, faces[:, 1]] - v[:, faces[:, 0]], v[:, faces[:, 2]] - v[:, faces[:, 0]],
+                                    axis=0), axis=0)
+    keep = area2 > 0
+    dropped = int(faces.shape[0] - keep.sum())
+    if dropped == faces.shape[0]:
+        raise MeshError("has only degenerate (zero-area) triangles")
+    return dict(vertices=vertices, faces=faces[keep] if dropped else faces, vertex_normals=normals, uv=uv,
+                dropped=dropped)
+
+
+def mesh_triangles(mesh: Mesh) -> dict:
+    """World-space triangle arrays of ``mesh``: ``v0, v1, v2 (3, F)`` and, when
+    smooth, ``vertex_normal (3, 3, F)``; ``vertex_uv (3, 2, F)`` if the file has uv."""
+    t = mesh.transform
+    vertices = mesh.vertices.T
+    if t is not None:
+        vertices = t.points(vertices)  # once per vertex, at compile time
+    f = mesh.faces.T
+    out = dict(v0=vertices[:, f[0]], v1=vertices[:, f[1]], v2=vertices[:, f[2]], vertex_normal=None, vertex_uv=None)
+    if mesh.smooth and mesh.vertex_normals is not None:
+        n = mesh.vertex_normals.T
+        if t is not None:
+            n = t.normals(n)
+        n = n / np.maximum(np.linalg.norm(n, axis=0), np.finfo(np.float64).tiny)
+        out["vertex_normal"] = np.stack((n[:, f[0]], n[:, f[1]], n[:, f[2]]))
+    if mesh.uv is not None:
+        uv = mesh.uv.T
+        out["vertex_uv"] = np.stack((uv[:, f[0]], uv[:, f[1]], uv[:, f[2]]))
+    return out

@@ -1,0 +1,174 @@
+"""Quads (parallelograms): the points ``corner + a u + b v`` with ``0 <= a, b <= 1``, as RTOW book 2's ``quad``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import math
+
+from ..geometry import T_MIN, material_field, position
+from ..transform import Transform, transform_field
+from ..validation import fail
+from ..vecmath import gather
+from .base import ShapeKind, box_bounding_sphere, exact_pad, in_box
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Quad:
+    """A parallelogram; its front side (the side it emits from) is ``cross(u, v)``'s.
+
+    ``corner``, ``u`` and ``v`` are three finite numbers each, ``u`` not
+    parallel to ``v``; ``material`` a name or index; ``transform`` as for
+    :class:`~wavefront.geometry.Sphere` but any steps.  Invalid values raise
+    :class:`~wavefront.validation.SceneError` naming the field.
+    """
+
+    corner: Vec3
+    u: Vec3
+    v: Vec3
+    material: str | int
+    transform: Transform | None = None
+
+    def __post_init__(self):
+        set_field = object.__setattr__
+        for key in ("corner", "u", "v"):
+            set_field(self, key, position(self, getattr(self, key), key))
+        set_field(self, "material", material_field(self, self.material))
+        set_field(self, "transform", transform_field(self, self.transform, "transform"))
+        if not _spans_a_plane(self.u, self.v):
+            fail(self, "", "degenerate quad: u and v are parallel (or zero)")
+
+    def world(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``corner, u, v`` in world space, each of shape (3,)."""
+        q, u, v = (np.asarray(x, dtype=np.float64) for x in (self.corner, self.u, self.v))
+        if self.transform is None:
+            return q, u, v
+        return (self.transform.points(q[:, None])[:, 0], self.transform.vectors(u[:, None])[:, 0],
+                self.transform.vectors(v[:, None])[:, 0])
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _spans_a_plane(a, b) -> bool:
+    """Whether ``a`` and ``b`` are far enough from parallel to span a plane."""
+    area = math.hypot(*_cross(a, b))
+    return math.isfinite(area) and area > 1e-12 * math.hypot(*a) * math.hypot(*b)
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box in object space, ``min < max`` on every axis, made
+    of six quads with outward normals (:meth:`quads`)."""
+
+    min: Vec3
+    max: Vec3
+    material: str | int
+    transform: Transform | None = None
+
+    def __post_init__(self):
+        set_field = object.__setattr__
+        set_field(self, "min", position(self, self.min, "min"))
+        set_field(self, "max", position(self, self.max, "max"))
+        set_field(self, "material", material_field(self, self.material))
+        set_field(self, "transform", transform_field(self, self.transform, "transform"))
+        if not all(a < b for a, b in zip(self.min, self.max)):
+            fail(self, "max", f"must exceed min on every axis (min {list(self.min)}, max {list(self.max)})")
+
+    def quads(self) -> list[Quad]:
+        return box_quads(self.min, self.max, self.material, self.transform)
+
+
+def box_quads(lo, hi, material, transform: Transform | None = None) -> list[Quad]:
+    """The six faces of the box ``[lo, hi]``, each ``cross(u, v)`` pointing out
+    (RTOW book 2's ``box``, with the faces' orientations made outward)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    dx, dy, dz = (x1 - x0, 0.0, 0.0), (0.0, y1 - y0, 0.0), (0.0, 0.0, z1 - z0)
+    neg = lambda a: tuple(-c for c in a)  # noqa: E731
+    return [
+        Quad((x0, y0, z1), dx, dy, material, transform),  # front (+z)
+        Quad((x1, y0, z1), neg(dz), dy, material, transform),  # right (+x)
+        Quad((x1, y0, z0), neg(dx), dy, material, transform),  # back (-z)
+        Quad((x0, y0, z0), dz, dy, material, transform),  # left (-x)
+        Quad((x0, y1, z1), dx, neg(dz), material, transform),  # top (+y)
+        Quad((x0, y0, z0), dx, dz, material, transform),  # bottom (-y)
+    ]
+
+
+class QuadSet(ShapeKind):
+    """Quads as arrays, at the render's precision: ``corner, u, v, normal, w (3, M)``, ``offset (M,)``."""
+
+    FIELDS = ("corner", "u", "v", "normal", "offset", "w", "box_lo", "box_hi")
+    name = "quad"
+
+    def __init__(self, corner, u, v, material_idx, dtype=np.float64, extent: float = 1.0):
+        corner, u, v = (np.asarray(a, dtype=np.float64).reshape(3, -1) for a in (corner, u, v))
+        n = np.cross(u, v, axis=0)
+        area = np.linalg.norm(n, axis=0)
+        if (area <= 0).any() or not np.isfinite(area).all():
+            raise ValueError("a quad's u and v must not be parallel")
+        normal = n / area
+        corners = np.stack((corner, corner + u, corner + v, corner + u + v))
+        pad = exact_pad(dtype, extent)
+        self.dtype = np.dtype(dtype)
+        self.pad = pad
+        # derived terms in float64 first, then stored at the render's precision
+        store = lambda a: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
+        self.corner, self.u, self.v, self.normal = store(corner), store(u), store(v), store(normal)
+        self.offset = store((normal * corner).sum(axis=0))  # the plane is normal . p = offset
+        self.w = store(n / (area * area))  # RTOW's w = n / (n . n), for the planar coordinates
+        self.bounds_lo, self.bounds_hi = corners.min(axis=0), corners.max(axis=0)
+        self.box_lo, self.box_hi = store(self.bounds_lo - pad), store(self.bounds_hi + pad)
+        self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
+
+    @classmethod
+    def build(cls, quads: list[Quad], material_idx, dtype, extent) -> QuadSet:
+        world = [q.world() for q in quads]  # per scene object, at compile time
+        corner, u, v = (np.array([w[k] for w in world], dtype=np.float64).reshape(-1, 3).T for k in range(3))
+        return cls(corner, u, v, material_idx, dtype, extent)
+
+    def bounds(self):
+        return self.bounds_lo, self.bounds_hi
+
+    def bounding_sphere(self):
+        return box_bounding_sphere(self.box_lo.astype(np.float64), self.box_hi.astype(np.float64))
+
+    @staticmethod
+    def planar(corner, u, v, w, px, py, pz):
+        """RTOW's planar coordinates (a, b) of points in the quad's plane."""
+        qx, qy, qz = px - corner[0], py - corner[1], pz - corner[2]
+        a = w[0] * (qy * v[2] - qz * v[1])
+        a += w[1] * (qz * v[0] - qx * v[2])
+        a += w[2] * (qx * v[1] - qy * v[0])
+        b = w[0] * (u[1] * qz - u[2] * qy)
+        b += w[1] * (u[2] * qx - u[0] * qz)
+        b += w[2] * (u[0] * qy - u[1] * qx)
+        return a, b
+
+    @staticmethod
+    def exact_t(corner, u, v, normal, offset, w, box_lo, box_hi, origin, direction):
+        """RTOW's ray-quad test, plus the hit point inside the quad's padded
+        box (see :func:`wavefront.shapes.base.exact_pad`); ``inf`` for a miss."""
+        denom = normal[0] * direction[0] + normal[1] * direction[1] + normal[2] * direction[2]
+        t = offset - (normal[0] * origin[0] + normal[1] * origin[1] + normal[2] * origin[2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t /= denom  # a ray in the plane gives inf or NaN, and fails every test below
+            p = (origin[0] + t * direction[0], origin[1] + t * direction[1], origin[2] + t * direction[2])
+            a, b = QuadSet.planar(corner, u, v, w, *p)
+            ok = (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & in_box(p, box_lo, box_hi)
+        return np.where(ok, t, np.inf)
+
+    def surface(self, idx, origin, direction, t, uv: bool):
+        point = origin + t * direction
+        outward = gather(self.normal, idx)
+        coords = None
+        if uv:
+            a, b = self.planar(gather(self.corner, idx), gather(self.u, idx), gather(self.v, idx),
+                               gather(self.w, idx), *point)
+            coords = np.stack((a, b))
+        return point, outward, outward, coords
