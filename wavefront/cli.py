@@ -88,7 +88,7 @@ _SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kmgt]?i?b?)?\s*$", re.IGNORECASE)
 
 def _memory(text: str) -> int:
     """Sizes like ``512M``, ``2GiB``, ``1.5g`` or plain bytes, within the machine's memory."""
-    from .render import physical_memory
+    from .memory import physical_memory
 
     m = _SIZE.match(text)
     if not m:
@@ -257,7 +257,7 @@ def _render(args, signals: _Signals, started: float) -> int:
     try:
         outputs = check_paths(args)
         _refuse_unless_loading_fits(args.scene, memory)
-        scene = load_scene(args.scene)
+        scene = load_scene(args.scene, memory=memory)
         scene = _with_flags(scene, args)
     except (SceneError, OutputError, MemoryBudgetError) as e:
         print(f"wavefront: error: {e}", file=sys.stderr)
@@ -338,7 +338,8 @@ def _render(args, signals: _Signals, started: float) -> int:
 
 def _refuse_unless_loading_fits(path: str, memory: int) -> None:
     """Refuse a scene file too big to load within the budget, before reading it."""
-    from .render import LOAD_BYTES_PER_FILE_BYTE, refuse_unless_fits
+    from .memory import refuse_unless_fits
+    from .render import LOAD_BYTES_PER_FILE_BYTE
 
     try:
         size = os.stat(path).st_size

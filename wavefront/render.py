@@ -22,7 +22,6 @@ import collections
 import itertools
 import multiprocessing
 import os
-import resource
 import signal
 import threading
 import time
@@ -34,6 +33,9 @@ import numpy as np
 
 from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
 from .integrators import TRACERS
+from .memory import (  # noqa: F401 (MemoryBudgetError and the measures are part of this module's API)
+    MemoryBudgetError, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
+    release_free_memory)
 from .output import OutputError, check_output_path
 from .path import TraceStats
 from .sampling import scene_key
@@ -55,10 +57,6 @@ TASKS_IN_FLIGHT = 2  # per worker: one running, one queued, so no worker waits
 # A finished task's pixel sums held by the parent until merged: at worst one
 # sample per pixel, so as many float64 RGB sums as samples.
 RESULT_BYTES_PER_SAMPLE = 3 * 8
-
-
-class MemoryBudgetError(ValueError):
-    """The render cannot fit in the memory budget at all."""
 
 
 @dataclass
@@ -96,85 +94,6 @@ class RenderResult:
         return self.film.image()
 
 
-# --- memory ------------------------------------------------------------------
-
-def _libc():
-    try:
-        import ctypes
-
-        return ctypes.CDLL("libc.so.6", use_errno=True)
-    except OSError:
-        return None
-
-
-def current_rss() -> int:
-    """This process's resident memory now, in bytes."""
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return peak_rss()
-
-
-def peak_rss() -> int:
-    """This process's peak resident memory since start (or the last reset)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-
-
-def _vm_hwm() -> int | None:
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError):
-        pass
-    return None
-
-
-def phase_peak(reset: bool = True) -> int:
-    """Peak resident memory of this process since the last call, then reset.
-
-    Linux resets the high-water mark on writing 5 to ``/proc/self/clear_refs``;
-    where that fails the peak since start is returned (an upper bound).
-    """
-    value = _vm_hwm()
-    if value is None:
-        return peak_rss()
-    if reset:
-        try:
-            with open("/proc/self/clear_refs", "w") as f:
-                f.write("5")
-        except OSError:
-            pass
-    return value
-
-
-def release_free_memory() -> None:
-    """Hand freed heap pages back to the kernel (glibc ``malloc_trim``), so a
-    forked worker does not inherit, and count, the parent's garbage."""
-    libc = _libc()
-    if libc is not None and hasattr(libc, "malloc_trim"):
-        libc.malloc_trim(0)
-
-
-def physical_memory() -> int:
-    """Memory this machine (or this cgroup, if it has a lower limit) can give."""
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError):
-        return 1 << 62
-    for limit in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
-        try:
-            with open(limit) as f:
-                text = f.read().strip()
-            if text.isdigit():
-                total = min(total, int(text))
-        except OSError:
-            pass
-    return total
-
-
 # What loading and compiling a scene take, measured with
 # ``benchmarks/bench.py --section budget`` (200,000 and 1,000,000 spheres):
 # the loader's peak per byte of YAML, and compile's (arrays, BVH) per
@@ -182,15 +101,6 @@ def physical_memory() -> int:
 # is read, not after it has already overrun the budget.
 LOAD_BYTES_PER_FILE_BYTE = 8
 COMPILE_BYTES_PER_PRIMITIVE = 1024
-
-
-def refuse_unless_fits(memory: int, need: int, what: str) -> None:
-    """Raise :class:`MemoryBudgetError` if ``need`` more bytes on top of this
-    process's current memory exceed ``memory``."""
-    total = current_rss() + need
-    if total > memory:
-        raise MemoryBudgetError(f"{what} needs about {total / MiB:,.0f} MiB, more than the memory budget "
-                                f"of {memory / MiB:,.0f} MiB (--memory)")
 
 
 def primitive_count(scene: Scene) -> int:
@@ -305,12 +215,12 @@ def tune_allocator() -> None:
     Raising the thresholds makes the heap reuse those pages; the peak
     resident memory is unchanged.  No-op where glibc is absent.
     """
-    libc = _libc()
-    if libc is None:
+    lib = libc()
+    if lib is None:
         return
     m_trim_threshold, m_mmap_threshold = -1, -3
-    libc.mallopt(m_mmap_threshold, 32 * MiB)  # glibc's maximum on 64-bit
-    libc.mallopt(m_trim_threshold, 256 * MiB)
+    lib.mallopt(m_mmap_threshold, 32 * MiB)  # glibc's maximum on 64-bit
+    lib.mallopt(m_trim_threshold, 256 * MiB)
 
 
 # --- work done in a worker (or inline) --------------------------------------
@@ -335,9 +245,9 @@ def _die_with_parent(parent: int) -> None:
     elsewhere a watchdog thread polls the parent id.  Either way no orphan
     keeps computing and printing broken-pipe tracebacks.
     """
-    libc = _libc()
+    lib = libc()
     pr_set_pdeathsig = 1
-    if libc is None or libc.prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0) != 0:
+    if lib is None or lib.prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0) != 0:
         def watch():
             while os.getppid() == parent:
                 time.sleep(0.2)

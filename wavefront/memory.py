@@ -1,0 +1,104 @@
+"""Memory: what this process holds and has held, and the budget's error.
+
+At the bottom of the package so the scene loader can refuse a file it cannot
+load within the budget before reading it, as the render driver does for the
+render (see :mod:`wavefront.render`).
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+
+MiB = 1024 * 1024
+
+
+class MemoryBudgetError(ValueError):
+    """The render cannot fit in the memory budget at all."""
+
+
+def libc():
+    """The C library, for glibc's allocator knobs and ``prctl``; None where absent."""
+    try:
+        import ctypes
+
+        return ctypes.CDLL("libc.so.6", use_errno=True)
+    except OSError:
+        return None
+
+
+def current_rss() -> int:
+    """This process's resident memory now, in bytes."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return peak_rss()
+
+
+def peak_rss() -> int:
+    """This process's peak resident memory since start (or the last reset)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _vm_hwm() -> int | None:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+def phase_peak(reset: bool = True) -> int:
+    """Peak resident memory of this process since the last call, then reset.
+
+    Linux resets the high-water mark on writing 5 to ``/proc/self/clear_refs``;
+    where that fails the peak since start is returned (an upper bound).
+    """
+    value = _vm_hwm()
+    if value is None:
+        return peak_rss()
+    if reset:
+        try:
+            with open("/proc/self/clear_refs", "w") as f:
+                f.write("5")
+        except OSError:
+            pass
+    return value
+
+
+def release_free_memory() -> None:
+    """Hand freed heap pages back to the kernel (glibc ``malloc_trim``), so a
+    forked worker does not inherit, and count, the parent's garbage."""
+    lib = libc()
+    if lib is not None and hasattr(lib, "malloc_trim"):
+        lib.malloc_trim(0)
+
+
+def physical_memory() -> int:
+    """Memory this machine (or this cgroup, if it has a lower limit) can give."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError):
+        return 1 << 62
+    for limit in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            with open(limit) as f:
+                text = f.read().strip()
+            if text.isdigit():
+                total = min(total, int(text))
+        except OSError:
+            pass
+    return total
+
+
+def refuse_unless_fits(memory: int, need: int, what: str) -> None:
+    """Raise :class:`MemoryBudgetError` if ``need`` more bytes on top of this
+    process's current memory exceed ``memory``."""
+    total = current_rss() + need
+    if total > memory:
+        raise MemoryBudgetError(f"{what} needs about {total / MiB:,.0f} MiB, more than the memory budget "
+                                f"of {memory / MiB:,.0f} MiB (--memory)")
