@@ -325,9 +325,7 @@ def section_geometry(runs):
     data["one_core"] = one
     ratio = one["1M"]["ns_per_segment"] / one["1k"]["ns_per_segment"]
     data["segment_ratio_1M_1k"] = ratio
-    text += "
-
-" + table(
+    text += "\n\n" + table(
         ["terrain, one core", "triangles", "scene compile + BVH build", "time per path segment", "peak memory"],
         [[label, f"{int(r['triangles']):,}", f"{r['build']:.2f} s", f"{r['ns_per_segment']:.0f} ns",
           fmt_mib(r["peak"])] for label, r in one.items()])
