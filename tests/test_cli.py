@@ -98,10 +98,16 @@ def test_bad_scene_exits_2_with_one_message_and_no_output(tmp_path, text, needle
     (("--width", "1000000", "--height", "1000000"), "pixels"),
     (("--memory", "100T"), "machine's memory"),
     (("--memory", "1M"), "--memory"),
+    (("--memory", "100ib"), "--memory"),
+    (("--memory", "9" * 400), "--memory"),
+    (("--spp", "1_000"), "--spp"),
+    (("--workers", str(2**31)), "--workers"),
+    (("--frames", str(2**31)), "--frames"),
 ])
 def test_bad_arguments_exit_2(tmp_path, args, needle):
     r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.png", *args)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.png").exists()
 
 
@@ -150,3 +156,53 @@ def test_a_small_budget_uses_fewer_workers_or_refuses_with_the_estimate(tmp_path
             "--memory", "64M")
     assert r.returncode == 2 and "needs about" in r.stderr and "MiB" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "big.npy").exists()
+
+
+def test_memory_sizes_in_every_spelling(tmp_path):
+    from wavefront.cli import _memory
+
+    assert _memory("1073741824") == _memory("1073741824B") == _memory("1G") == _memory("1GiB") == 1 << 30
+    assert _memory("1.5g") == 3 << 29 and _memory("512mb") == 512 << 20
+
+
+def test_the_python_api_checks_its_arguments_like_the_flags():
+    from wavefront import Lambertian, Scene, Sphere, render_scene
+
+    scene = Scene(spheres=[Sphere((0, 0, -1), 0.5, "m")], materials={"m": Lambertian()}, width=4, height=3)
+    for bad in (dict(memory=100 << 40), dict(memory="1G"), dict(memory=-1), dict(workers=0), dict(workers=2.5),
+                dict(chunk_size=0), dict(chunk_size=-5), dict(checkpoint_interval=float("nan")),
+                dict(checkpoint_interval=-1)):
+        with pytest.raises(ValueError):
+            render_scene(scene, **bad)
+    for bad in (dict(progress=5), dict(should_stop=True), dict(executor=5)):
+        with pytest.raises(TypeError):
+            render_scene(scene, **bad)
+
+
+def test_many_frames_are_checked_in_linear_time(tmp_path):
+    from types import SimpleNamespace
+
+    from wavefront.cli import check_paths
+
+    args = SimpleNamespace(output=str(tmp_path / "f{frame:05d}.npy"), frames=20_000, checkpoint=None, resume=None,
+                           scene=str(SCENES / "three_spheres.yaml"))
+    start = time.monotonic()
+    assert len(check_paths(args)) == 20_000
+    assert time.monotonic() - start < 20  # quadratic took 41 s for 2,000 frames
+
+
+def test_a_nul_byte_in_a_frame_name_is_one_line(tmp_path):
+    r = run("render", SCENES / "three_spheres.yaml", "-o", str(tmp_path / "f{frame:c}.png"), "--frames", 2, *SMALL)
+    assert r.returncode == 2 and "NUL" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_an_existing_checkpoint_is_not_overwritten_without_resume(tmp_path):
+    ck = tmp_path / "ck.npz"
+    assert run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "a.npy", "--checkpoint", ck, *SMALL,
+               "-q").returncode == 0
+    before = ck.read_bytes()
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "b.npy", "--checkpoint", ck, *SMALL)
+    assert r.returncode == 2 and "--resume" in r.stderr and ck.read_bytes() == before
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "b.npy", "--checkpoint", ck, "--resume", ck,
+            *SMALL, "-q")
+    assert r.returncode == 0, r.stderr

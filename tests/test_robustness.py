@@ -232,3 +232,49 @@ def test_albedo_above_one_and_blazing_lamps_stay_finite():
     assert np.isfinite(result.image).all()
     # 50^400 overflows float64: those samples are dropped and counted, not written
     assert result.stats.dropped > 0
+
+
+def test_a_killed_worker_costs_only_its_task(tmp_path):
+    """A pool worker killed mid-render (say by the out-of-memory killer): its
+    task is run again and the image is exactly the undisturbed one."""
+    reference = tmp_path / "ref.npy"
+    assert run("render", SLOW, "-o", reference, "--spp", 64, "--workers", 1, "-q").returncode == 0
+    out, ck = tmp_path / "out.npy", tmp_path / "ck.npz"
+    proc = start(SLOW, "-o", out, "--spp", 64, "--workers", 2, "--chunk-size", 2000,
+                 "--checkpoint", ck, "--checkpoint-interval", "0.01")
+    wait_for(ck)
+    workers = children_of(proc.pid)
+    assert workers
+    os.kill(workers[0], signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    np.testing.assert_array_equal(np.load(out), np.load(reference))
+
+
+def test_a_signal_before_any_sample_is_finished_writes_nothing(tmp_path, monkeypatch, capsys):
+    import importlib
+
+    from wavefront import cli
+
+    render_module = importlib.import_module("wavefront.render")
+    out = tmp_path / "out.png"
+    out.write_bytes(b"precious")
+    real = render_module._run_inline
+
+    def signalled_at_once(*args):
+        os.kill(os.getpid(), signal.SIGTERM)  # arrives as the render starts
+        return real(*args)
+
+    monkeypatch.setattr(render_module, "_run_inline", signalled_at_once)
+    status = cli.main(["render", str(SCENES / "three_spheres.yaml"), "-o", str(out), "--workers", "1"])
+    err = capsys.readouterr().err
+    assert status == 128 + signal.SIGTERM and "nothing was written" in err and "Traceback" not in err
+    assert out.read_bytes() == b"precious"
+
+    def signalled_while_compiling(scene, memory):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("the signal should have ended the command")
+
+    monkeypatch.setattr(render_module, "compile_within", signalled_while_compiling)
+    status = cli.main(["render", str(SCENES / "three_spheres.yaml"), "-o", str(out), "--workers", "1"])
+    assert status == 128 + signal.SIGTERM and out.read_bytes() == b"precious"

@@ -16,6 +16,7 @@ second time, the command gives up at once, writes nothing, and exits with
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import re
 import signal
@@ -25,6 +26,7 @@ import time
 import warnings
 
 EXIT_BAD_INPUT = 2
+EXIT_FAILURE = 1  # the render itself failed (its workers kept dying)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -42,11 +44,13 @@ def _limits():
     return scene
 
 
+_INTEGER = re.compile(r"^\s*[-+]?[0-9]+\s*$")
+
+
 def _integer(text: str, low: int, high: int, what: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not _INTEGER.match(text):  # int() also takes "1_000" and non-ASCII digits
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    value = int(text)
     if not low <= value <= high:
         raise argparse.ArgumentTypeError(f"expected {what} in [{low}, {high:,}], got {text!r}")
     return value
@@ -69,6 +73,19 @@ def _positive_int(text: str) -> int:
     return _integer(text, 1, 1 << 31, "a positive integer")
 
 
+def _workers(text: str) -> int:
+    from .render import MAX_WORKERS
+
+    return _integer(text, 1, MAX_WORKERS, "a positive integer")
+
+
+MAX_FRAMES = 100_000  # a turntable an hour long at 24 frames a second, with room to spare
+
+
+def _frames(text: str) -> int:
+    return _integer(text, 1, MAX_FRAMES, "a positive integer")
+
+
 def _seed(text: str) -> int:
     return _integer(text, 0, _limits().MAX_SEED, "a non-negative integer")
 
@@ -83,20 +100,21 @@ def _positive_float(text: str) -> float:
     return value
 
 
-_SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kmgt]?i?b?)?\s*$", re.IGNORECASE)
+_SIZE = re.compile(r"^\s*([0-9]{1,15}(?:\.[0-9]{1,9})?)\s*(?:([kmgt])(i)?)?(b)?\s*$", re.IGNORECASE)
+_SCALE = {None: 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
 
 
 def _memory(text: str) -> int:
-    """Sizes like ``512M``, ``2GiB``, ``1.5g`` or plain bytes, within the machine's memory."""
-    from .memory import physical_memory
+    """Sizes like ``512M``, ``2GiB``, ``1.5g``, ``1073741824`` or ``1073741824B``
+    (binary units), within the machine's memory."""
+    from .memory import MIN_MEMORY, physical_memory
 
     m = _SIZE.match(text)
     if not m:
         raise argparse.ArgumentTypeError(f"expected a size such as 512M or 2G, got {text!r}")
-    scale = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[(m.group(2) or "")[:1].lower()]
-    value = int(float(m.group(1)) * scale)
-    if value < 64 << 20:
-        raise argparse.ArgumentTypeError(f"at least 64M is needed, got {text!r}")
+    value = int(float(m.group(1)) * _SCALE[m.group(2) and m.group(2).lower()])
+    if value < MIN_MEMORY:
+        raise argparse.ArgumentTypeError(f"at least {MIN_MEMORY >> 20}M is needed, got {text!r}")
     physical = physical_memory()
     if value > physical:
         raise argparse.ArgumentTypeError(f"{text!r} is more than this machine's memory "
@@ -132,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--spp", type=_spp, help="samples per pixel")
     r.add_argument("--max-depth", type=_depth, help="path segments (path) or recursion depth (whitted)")
     r.add_argument("--seed", type=_seed, help="random seed; the same seed gives the same image")
-    r.add_argument("--workers", type=_positive_int,
+    r.add_argument("--workers", type=_workers,
                    help="processes (default: all cores, fewer if --memory needs it); the image does not change")
     r.add_argument("--memory", type=_memory,
                    help="memory budget for the whole process tree, e.g. 512M (default 1G)")
@@ -143,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--resume", metavar="FILE.npz", help="continue the render saved in checkpoint FILE.npz")
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="render on a Dask cluster: tcp://HOST:8786, or local:N to start N local workers")
-    r.add_argument("--frames", type=_positive_int, metavar="N",
+    r.add_argument("--frames", type=_frames, metavar="N",
                    help="render a turntable of N frames around look_at; OUT names them with {frame}, "
                         "e.g. spin_{frame:03d}.png")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
@@ -171,7 +189,10 @@ class _Signals:
 def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     signals = _Signals()
-    previous = {sig: signal.signal(sig, signals) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # a signal ignored when the command started (SIGINT for a shell's
+    # background job) stays ignored, as POSIX tools do
+    previous = {sig: signal.signal(sig, signals) for sig in (signal.SIGINT, signal.SIGTERM)
+                if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
         args = build_parser().parse_args(argv)
         warnings.showwarning = _warn_line
@@ -190,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def frame_paths(output: str, frames: int | None) -> list[str]:
     """Output path of each frame: ``{frame}`` formatted, or ``_0000`` before the extension."""
+    if "\0" in output:
+        raise ValueError(f"{output!r}: a file name cannot contain a NUL byte")
     if frames is None:
         if "{frame" in output:
             raise ValueError(f"{output}: names {{frame}} but --frames was not given")
@@ -204,15 +227,19 @@ def frame_paths(output: str, frames: int | None) -> list[str]:
         paths = [f"{stem}_{k:04d}{ext}" for k in range(frames)]
     if len(set(paths)) != len(paths):
         raise ValueError(f"{output}: the {{frame}} pattern gives two frames the same file name")
+    if any("\0" in path for path in paths):
+        raise ValueError(f"{output!r}: the {{frame}} pattern makes a file name with a NUL byte")
     return paths
 
 
 def check_paths(args) -> list[str]:
     """Check every file the command reads or writes, before anything else.
 
-    Returns the output path of each frame.  Raises ``OutputError``.
+    Returns the output path of each frame.  Raises ``OutputError``.  Linear
+    in the number of frames: files are compared by identity keys, and each
+    directory is probed once.
     """
-    from .output import OutputError, check_output_path, same_file
+    from .output import OutputError, check_output_path, file_key
 
     if args.frames is not None and (args.checkpoint or args.resume):
         raise OutputError("--checkpoint and --resume work on single images, not --frames")
@@ -220,24 +247,33 @@ def check_paths(args) -> list[str]:
         outputs = frame_paths(args.output, args.frames)
     except ValueError as e:
         raise OutputError(str(e)) from None
+    probed = set()
     for out in outputs:
-        check_output_path(out)
-    writes = [("-o", out) for out in outputs]
+        target = check_output_path(out, probe=os.path.dirname(os.path.realpath(out)) not in probed)
+        probed.add(os.path.dirname(target))
+    writes = [(f"frame {k}" if args.frames is not None else "-o", out) for k, out in enumerate(outputs)]
     if args.checkpoint is not None:
         if not args.checkpoint.endswith(".npz"):
             raise OutputError(f"{args.checkpoint}: a checkpoint file name must end in .npz (--checkpoint)")
         check_output_path(args.checkpoint, image=False)
+        same_as_resume = args.resume is not None and file_key(args.resume) == file_key(args.checkpoint)
+        if os.path.exists(args.checkpoint) and not same_as_resume:
+            raise OutputError(f"{args.checkpoint}: already exists (an earlier render's progress?); continue it "
+                              "with --resume and the same file, or remove it first (--checkpoint)")
         writes.append(("--checkpoint", args.checkpoint))
-    for i, (flag, path) in enumerate(writes):
-        for other_flag, other in writes[:i]:
-            if same_file(path, other):
-                raise OutputError(f"{path}: {other_flag} and {flag} name the same file")
-        reads = [("the scene", args.scene)] + ([("--resume", args.resume)] if args.resume else [])
-        for what, source in reads:
-            if what == "--resume" and flag == "--checkpoint":
-                continue  # resuming and saving to the same checkpoint is how a render is continued
-            if same_file(path, source):
-                raise OutputError(f"{path}: {flag} would overwrite {what}")
+    reads = {file_key(args.scene): "the scene"}
+    if args.resume is not None:
+        reads[file_key(args.resume)] = "--resume"
+    seen = {}
+    for flag, path in writes:
+        key = file_key(path)
+        if key in seen:
+            raise OutputError(f"{path}: {seen[key]} and {flag} name the same file")
+        seen[key] = flag
+        what = reads.get(key)
+        # resuming and saving to the same checkpoint is how a render is continued
+        if what is not None and not (what == "--resume" and flag == "--checkpoint"):
+            raise OutputError(f"{path}: {flag} would overwrite {what}")
     if args.resume is not None:
         if not os.path.exists(args.resume):
             raise OutputError(f"{args.resume}: no such checkpoint file")
@@ -249,7 +285,7 @@ def check_paths(args) -> list[str]:
 def _render(args, signals: _Signals, started: float) -> int:
     from .film import CheckpointError
     from .output import OutputError, encode_bytes
-    from .render import DEFAULT_MEMORY, MemoryBudgetError, phase_peak, render_scene
+    from .render import DEFAULT_MEMORY, MemoryBudgetError, RenderError, compile_within, phase_peak, render_scene
     from .scene import turntable
     from .scenefile import SceneError, load_scene
 
@@ -259,8 +295,11 @@ def _render(args, signals: _Signals, started: float) -> int:
         _refuse_unless_loading_fits(args.scene, memory)
         scene = load_scene(args.scene, memory=memory)
         scene = _with_flags(scene, args)
-    except (SceneError, OutputError, MemoryBudgetError) as e:
+    except (SceneError, OutputError) as e:
         print(f"wavefront: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryBudgetError as e:
+        print(f"wavefront: error: {e} (--memory)", file=sys.stderr)
         return EXIT_BAD_INPUT
     loaded = time.perf_counter()
 
@@ -276,33 +315,47 @@ def _render(args, signals: _Signals, started: float) -> int:
         executor = dask_executor(client)
         workers = max(1, len(client.scheduler_info().get("workers", {})))
 
-    frames = [scene] if args.frames is None else [turntable(scene, k, args.frames) for k in range(args.frames)]
     samples_per_frame = scene.width * scene.height * scene.render.samples_per_pixel
     bar = None
     if not args.quiet and sys.stderr.isatty():
         from tqdm import tqdm
 
-        bar = tqdm(total=len(frames) * samples_per_frame, unit="samples", unit_scale=True, file=sys.stderr,
+        bar = tqdm(total=len(outputs) * samples_per_frame, unit="samples", unit_scale=True, file=sys.stderr,
                    leave=False)
     try:
-        for k, (frame_scene, out) in enumerate(zip(frames, outputs)):
+        for k, out in enumerate(outputs):
+            frame_scene = scene if args.frames is None else turntable(scene, k, args.frames)
+
             def progress(done: int, total: int, offset=k * samples_per_frame) -> None:
                 if bar is not None:
                     bar.update(offset + done - bar.n)
 
-            signals.rendering = True
             try:
+                # compiled before the render starts, so a signal meanwhile gives up
+                # at once instead of stopping a render that never began
+                compiled = None if executor is not None else compile_within(frame_scene, memory)
+                signals.rendering = True
                 result = render_scene(frame_scene, workers=workers, memory=memory, chunk_size=args.chunk_size,
                                       progress=progress, should_stop=lambda: signals.stop is not None,
                                       checkpoint=args.checkpoint, checkpoint_interval=args.checkpoint_interval,
-                                      resume=args.resume, executor=executor,
+                                      resume=args.resume, executor=executor, compiled=compiled,
                                       output_bytes=encode_bytes(scene.width, scene.height, out))
-            except (CheckpointError, MemoryBudgetError, OutputError) as e:
+            except (CheckpointError, OutputError) as e:
                 print(f"wavefront: error: {e}", file=sys.stderr)
                 return EXIT_BAD_INPUT
+            except MemoryBudgetError as e:
+                print(f"wavefront: error: {e} (--memory)", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            except RenderError as e:
+                print(f"wavefront: error: {e}; nothing was written", file=sys.stderr)
+                return EXIT_FAILURE
             finally:
                 signals.rendering = False
             s = result.stats
+            if s.units_done == 0:  # stopped before a single unit finished: there is no image
+                print(f"wavefront: interrupted ({signal.Signals(signals.stop).name}) before any sample was "
+                      f"finished; nothing was written", file=sys.stderr)
+                return 128 + signals.stop
             metadata = {"Software": f"wavefront {_version()}", "wavefront.scene": scene.name,
                         "wavefront.seed": s.seed, "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
                         "wavefront.partial": "yes" if s.partial else "no",
@@ -310,15 +363,15 @@ def _render(args, signals: _Signals, started: float) -> int:
             if args.frames is not None:
                 metadata["wavefront.frame"] = f"{k}/{args.frames}"
             write_start = time.perf_counter()
-            failure = _write_or_rescue(out, result.film, metadata)
+            written, failure = _write_or_rescue(out, result.film, metadata)
             s.peak_memory = max(s.peak_memory, phase_peak(reset=False))
-            if not args.quiet:
+            if not args.quiet and written is not None:
                 if bar is not None:
                     bar.clear()
                 timing = Timing(load=loaded - started if k == 0 else 0.0, render=s.elapsed,
                                 write=time.perf_counter() - write_start,
                                 total=process_age(time.perf_counter() - started))
-                print(summary_line(frame_scene, s, out, timing), file=sys.stderr)
+                print(summary_line(frame_scene, s, written, timing), file=sys.stderr)
             if failure is not None or s.checkpoint_error is not None:
                 for message in (failure, s.checkpoint_error):
                     if message is not None:
@@ -368,34 +421,38 @@ def _with_flags(scene, args):
         raise SceneError(args.scene, named or "image", e.problem) from None
 
 
-def _write_or_rescue(out: str, film, metadata) -> str | None:
+def _write_or_rescue(out: str, film, metadata) -> tuple[str | None, str | None]:
     """Write the image; if that fails after all the checks, save it elsewhere.
 
-    Returns None on success, else the message to print: what failed and
-    where the image went instead.  A finished render is never lost to a
+    Returns ``(path written, None)`` on success, else ``(where it went or
+    None, the message to print)``.  A finished render is never lost to a
     full disk or a directory removed while it ran.
     """
     from .output import OutputError, write_image
 
     try:
         write_image(out, film, metadata)
-        return None
-    except (OSError, OutputError) as e:
-        problem = f"{out}: cannot write: {getattr(e, 'strerror', None) or e}"
+        return out, None
+    except OutputError as e:
+        problem = f"cannot write the image: {e}"
+    except OSError as e:
+        problem = f"{out}: cannot write the image: {e.strerror or e}"
     ext = os.path.splitext(out)[1].lower()
     for directory in dict.fromkeys((tempfile.gettempdir(), os.getcwd(), os.path.expanduser("~"))):
         for suffix in dict.fromkeys((ext, ".npy")):
-            try:
+            try:  # a fresh name; the file itself is written anew, with the usual permissions
                 fd, rescue = tempfile.mkstemp(prefix="wavefront-rescued-", suffix=suffix, dir=directory)
+                os.close(fd)
+                os.unlink(rescue)
             except OSError:
                 continue
-            os.close(fd)
             try:
                 write_image(rescue, film, metadata)
-                return f"{problem}; the image was saved to {rescue} instead"
+                return rescue, f"{problem}; the image was saved to {rescue} instead"
             except (OSError, OutputError):
-                os.unlink(rescue)
-    return f"{problem}; no other place to save the image was writable either"
+                with contextlib.suppress(OSError):
+                    os.unlink(rescue)
+    return None, f"{problem}; no other place to save the image was writable either"
 
 
 class Timing:

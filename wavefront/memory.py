@@ -98,7 +98,25 @@ def physical_memory() -> int:
 def refuse_unless_fits(memory: int, need: int, what: str) -> None:
     """Raise :class:`MemoryBudgetError` if ``need`` more bytes on top of this
     process's current memory exceed ``memory``."""
-    total = current_rss() + need
-    if total > memory:
-        raise MemoryBudgetError(f"{what} needs about {total / MiB:,.0f} MiB, more than the memory budget "
-                                f"of {memory / MiB:,.0f} MiB (--memory)")
+    held = current_rss()
+    if held + need > memory:
+        raise MemoryBudgetError(f"{what} needs about {need / MiB:,.0f} MiB more than the {held / MiB:,.0f} MiB "
+                                f"this process holds: {(held + need) / MiB:,.0f} MiB in all, more than the "
+                                f"memory budget of {memory / MiB:,.0f} MiB")
+
+
+MIN_MEMORY = 64 * MiB  # the interpreter and NumPy alone take ~40 MiB
+
+
+def check_budget(memory) -> int:
+    """A memory budget in bytes: an integer from ``MIN_MEMORY`` to this
+    machine's memory (the same rule as ``--memory``).  Raises ValueError."""
+    if isinstance(memory, bool) or not isinstance(memory, int):
+        raise ValueError(f"memory: expected a number of bytes, got {memory!r}")
+    if memory < MIN_MEMORY:
+        raise ValueError(f"memory: at least {MIN_MEMORY // MiB} MiB is needed, got {memory:,} bytes")
+    physical = physical_memory()
+    if memory > physical:
+        raise ValueError(f"memory: {memory / 2**30:,.1f} GiB is more than this machine's memory "
+                         f"({physical / 2**30:,.1f} GiB)")
+    return memory

@@ -46,6 +46,9 @@ class OutputError(ValueError):
 
 def output_format(path: str) -> str:
     ext = os.path.splitext(path)[1].lower()
+    if not ext and os.path.basename(path).startswith("."):
+        raise OutputError(f"{path}: has no extension (a name starting with a dot is a hidden file's name); "
+                          f"expected one of: {', '.join(FORMATS)}")
     if ext not in FORMATS:
         raise OutputError(f"{path}: unknown output extension {ext or '(none)'!r} "
                           f"(expected one of: {', '.join(FORMATS)})")
@@ -78,16 +81,19 @@ def _refuse_unless_replaceable(path: str, st: os.stat_result) -> None:
                           "overwrite read-only files: make it writable or remove it first")
 
 
-def check_output_path(path: str, *, image: bool = True) -> str:
+def check_output_path(path: str, *, image: bool = True, probe: bool = True) -> str:
     """Fail early if ``path`` cannot or must not be written; return its target.
 
     ``image`` checks the extension is an image format.  The directory is
-    probed by creating and removing a temporary file there, the same way the
-    file will be written: permission bits alone do not tell (root passes
-    ``os.access`` on read-only mounts and in ``/proc``).
+    probed (unless ``probe`` is false, for a directory already probed) by
+    creating and removing a temporary file there, the same way the file will
+    be written: permission bits alone do not tell (root passes ``os.access``
+    on read-only mounts and in ``/proc``).
     """
     if image:
         output_format(path)
+    if "\0" in path:
+        raise OutputError(f"{path!r}: a file name cannot contain a NUL byte")
     target = resolve_target(path)
     try:
         st = os.stat(target)
@@ -97,28 +103,60 @@ def check_output_path(path: str, *, image: bool = True) -> str:
         raise OutputError(f"{path}: {e.strerror or e}") from None
     if st is not None:
         _refuse_unless_replaceable(path, st)
+        _refuse_if_immutable(path, target)
     directory = os.path.dirname(target)
     if not os.path.isdir(directory):
         raise OutputError(f"{path}: directory {directory} does not exist")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".wavefront-probe-", dir=directory)
-    except OSError as e:
-        raise OutputError(f"{path}: cannot write in {directory} ({e.strerror or e})") from None
-    os.close(fd)
-    os.unlink(probe)
+    if probe:
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=".wavefront-probe-", dir=directory)
+        except OSError as e:
+            raise OutputError(f"{path}: cannot write in {directory} ({e.strerror or e})") from None
+        os.close(fd)
+        os.unlink(tmp)
     return target
+
+
+_FS_IOC_GETFLAGS = 0x80086601  # Linux: a file's attribute flags (chattr)
+_IMMUTABLE, _APPEND_ONLY = 0x10, 0x20
+
+
+def _refuse_if_immutable(path: str, target: str) -> None:
+    """Refuse a file marked immutable or append-only (``chattr +i``/``+a``):
+    even root cannot replace it, which otherwise shows only after rendering."""
+    try:
+        import array
+        import fcntl
+
+        fd = os.open(target, os.O_RDONLY | os.O_NONBLOCK)
+    except (ImportError, OSError):
+        return
+    try:
+        flags = array.array("l", [0])
+        fcntl.ioctl(fd, _FS_IOC_GETFLAGS, flags, True)
+    except OSError:
+        return  # a file system without attribute flags
+    finally:
+        os.close(fd)
+    if flags[0] & (_IMMUTABLE | _APPEND_ONLY):
+        raise OutputError(f"{path}: is marked {'immutable' if flags[0] & _IMMUTABLE else 'append-only'} "
+                          "(chattr); wavefront cannot replace it")
+
+
+def file_key(path: str):
+    """What identifies the file ``path`` names, through symlinks and hard
+    links: its device and inode if it exists, else its resolved path."""
+    target = resolve_target(path)
+    try:
+        st = os.stat(target)
+        return (st.st_dev, st.st_ino)
+    except OSError:
+        return target
 
 
 def same_file(a: str, b: str) -> bool:
     """Whether two paths name one file (through symlinks and hard links)."""
-    ta, tb = resolve_target(a), resolve_target(b)
-    if ta == tb:
-        return True
-    try:
-        sa, sb = os.stat(ta), os.stat(tb)
-    except OSError:
-        return False
-    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
+    return file_key(a) == file_key(b)
 
 
 def encode_srgb8(image: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ import numpy as np
 from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
 from .integrators import TRACERS
 from .memory import (  # noqa: F401 (MemoryBudgetError and the measures are part of this module's API)
-    MemoryBudgetError, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
+    MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
     release_free_memory)
 from .output import OutputError, check_output_path
 from .path import TraceStats
@@ -165,15 +165,19 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
     if fallback is not None:
         return fallback
     smallest = MemoryPlan(1, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
-    parts = [f"the process and scene {base / MiB:,.0f} MiB"]
+    parts = [f"the process and scene {_mib(base)}"]
     if film:
-        parts.append(f"the film {film / MiB:,.0f} MiB")
+        parts.append(f"the film {_mib(film)}")
     if smallest.peak == smallest.base + smallest.film + output:
-        parts.append(f"writing the image {output / MiB:,.0f} MiB")
+        parts.append(f"writing the image {_mib(output)}")
     else:
-        parts.append(f"{smallest.capacity} paths in flight {smallest.capacity * BYTES_PER_PATH / MiB:,.1f} MiB")
-    raise MemoryBudgetError(f"the render needs about {smallest.peak / MiB:,.0f} MiB ({', '.join(parts)}), "
-                            f"more than the memory budget of {memory / MiB:,.0f} MiB (--memory)")
+        parts.append(f"{smallest.capacity} paths in flight {_mib(smallest.capacity * BYTES_PER_PATH)}")
+    raise MemoryBudgetError(f"the render needs about {_mib(smallest.peak)} ({', '.join(parts)}), "
+                            f"more than the memory budget of {_mib(memory)}")
+
+
+def _mib(size: int) -> str:
+    return f"{size / MiB:,.1f} MiB" if size < 10 * MiB else f"{size / MiB:,.0f} MiB"
 
 
 # --- tasks ---------------------------------------------------------------------
@@ -295,6 +299,30 @@ def run_task(units: list[Unit]):
     return execute(w.compiled, w.key, w.capacity, units, w.should_stop)
 
 
+MAX_WORKERS = 1024  # far past any machine's cores; bounds the planning too
+
+
+def _check_arguments(*, memory, workers, chunk_size, checkpoint_interval, progress, should_stop, executor):
+    """The arguments of :func:`render_scene`, by the command line's rules; ValueError or TypeError."""
+    check_budget(memory)
+    for name, value, high in (("workers", workers, MAX_WORKERS), ("chunk_size", chunk_size, 1 << 31)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= high):
+            raise ValueError(f"{name}: expected an integer in [1, {high:,}] or None, got {value!r}")
+    if isinstance(checkpoint_interval, bool) or not isinstance(checkpoint_interval, (int, float)) \
+            or not 0 < checkpoint_interval < float("inf"):
+        raise ValueError(f"checkpoint_interval: expected a positive number of seconds, got {checkpoint_interval!r}")
+    for name, value in (("progress", progress), ("should_stop", should_stop), ("executor", executor)):
+        if value is not None and not callable(value):
+            raise TypeError(f"{name}: expected a callable or None, got {value!r}")
+
+
+def compile_within(scene: Scene, memory: int) -> CompiledScene:
+    """``scene.compile()``, refused first if its estimate does not fit in ``memory``."""
+    refuse_unless_fits(memory, COMPILE_BYTES_PER_PRIMITIVE * primitive_count(scene),
+                       f"compiling {primitive_count(scene):,} primitives")
+    return scene.compile()
+
+
 def render(scene: Scene, **options) -> np.ndarray:
     """Render ``scene``; returns the linear float32 image of shape (H, W, 3).
 
@@ -305,6 +333,10 @@ def render(scene: Scene, **options) -> np.ndarray:
 
 class RenderInterrupted(Exception):
     """Raised inside a task when the render was asked to stop."""
+
+
+class RenderError(RuntimeError):
+    """The render could not finish: its worker processes kept dying."""
 
 
 def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFAULT_MEMORY,
@@ -360,6 +392,8 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         If ``checkpoint`` cannot be written.
     """
     start = time.perf_counter()
+    _check_arguments(memory=memory, workers=workers, chunk_size=chunk_size, checkpoint_interval=checkpoint_interval,
+                     progress=progress, should_stop=should_stop, executor=executor)
     tune_allocator()
     if checkpoint is not None:
         if not str(checkpoint).endswith(".npz"):
@@ -368,13 +402,11 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     pixels = scene.width * scene.height
     plan = UnitPlan(scene.width, scene.height, scene.render.samples_per_pixel)
     if resume is not None:
+        refuse_unless_fits(memory, pixels * FILM_BYTES_PER_PIXEL, f"resuming a {scene.width}x{scene.height} film")
         film, first_unit = load_checkpoint(resume, scene, len(plan))
     else:
         film, first_unit = Film(scene.width, scene.height), 0
-    if compiled is None and executor is None:
-        refuse_unless_fits(memory, COMPILE_BYTES_PER_PRIMITIVE * primitive_count(scene),
-                           f"compiling {primitive_count(scene):,} primitives")
-    cs = compiled if compiled is not None or executor is not None else scene.compile()
+    cs = compiled if compiled is not None or executor is not None else compile_within(scene, memory)
     requested = max(1, workers if workers is not None else (os.cpu_count() or 1))
     release_free_memory()
     base = current_rss()
@@ -404,8 +436,11 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
             return
         try:
             save_checkpoint(checkpoint, scene, film, stats.units_done)
-        except (OSError, OutputError) as e:
-            stats.checkpoint_error = f"{checkpoint}: cannot write the checkpoint: {getattr(e, 'strerror', None) or e}"
+        except OutputError as e:
+            stats.checkpoint_error = f"cannot write the checkpoint: {e}"
+        except OSError as e:
+            stats.checkpoint_error = f"{checkpoint}: cannot write the checkpoint: {e.strerror or e}"
+        if stats.checkpoint_error is not None:
             warnings.warn(stats.checkpoint_error, RuntimeWarning, stacklevel=3)
 
     def merge(result) -> None:
@@ -436,6 +471,10 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
             _run_pool(scene, cs, capacity, tasks, merge, stopped, workers)
     except RenderInterrupted:
         pass
+    except RenderError:
+        if checkpoint is not None:
+            save()  # what was finished can still be resumed
+        raise
     if checkpoint is not None:
         save()
     worker_peaks.pop(os.getpid(), None)  # inline tasks ran in this process
@@ -447,6 +486,41 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
 
 
 POLL_SECONDS = 0.1  # how often a waiting parent checks for a stop request
+MAX_WORKER_DEATHS = 3  # past this, a render whose workers keep dying (out of memory?) gives up
+
+
+class _WorkerWatch:
+    """Notices pool workers that died (killed, out of memory): a
+    ``multiprocessing.Pool`` replaces them silently and their tasks never finish.
+
+    Reads ``Pool._pool``, the pool's list of worker processes: the only view
+    of them multiprocessing offers.  Workers never exit on their own during a
+    render, so any exit code is a death.
+    """
+
+    def __init__(self, pool):
+        self.pool, self.known, self.codes = pool, {}, []
+
+    def deaths(self) -> int:
+        for process in list(self.pool._pool):
+            self.known.setdefault(process.pid, process)
+        dead = [pid for pid, process in self.known.items() if process.exitcode is not None]
+        for pid in dead:
+            self.codes.append(self.known.pop(pid).exitcode)
+        if len(self.codes) > MAX_WORKER_DEATHS:
+            causes = ", ".join(sorted({_exit_cause(code) for code in self.codes}))
+            raise RenderError(f"{len(self.codes)} worker processes died ({causes}); "
+                              "if the system ran out of memory, lower --memory or --workers")
+        return len(dead)
+
+
+def _exit_cause(code: int) -> str:
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit status {code}"
 
 
 def _run_inline(cs, capacity, tasks, merge, stopped) -> None:
@@ -472,22 +546,31 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     try:
         # A bounded window of tasks in flight, merged strictly in task order:
         # the plan is never materialised, however many samples it has.
-        pending = collections.deque()
+        pending = collections.deque()  # (task, its AsyncResult)
         tasks = iter(tasks)
+        watch = _WorkerWatch(pool)
 
         def submit() -> None:
             task = next(tasks, None)
             if task is not None:
-                pending.append(pool.apply_async(run_task, (task,)))
+                pending.append((task, pool.apply_async(run_task, (task,))))
 
         for _ in range(TASKS_IN_FLIGHT * workers):
             submit()
         while pending:
-            while not pending[0].ready():
+            while not pending[0][1].ready():
                 if stopped():
                     raise RenderInterrupted
-                pending[0].wait(POLL_SECONDS)
-            result = pending.popleft().get()  # re-raises a task's error
+                pending[0][1].wait(POLL_SECONDS)
+                if watch.deaths():
+                    # The pool replaces a dead worker but loses the task it held.  A
+                    # task's result depends on the task alone, so every unfinished one
+                    # is submitted again (a duplicate is harmless) and the image is
+                    # the same as if nothing had happened.
+                    for i, (task, result) in enumerate(pending):
+                        if not result.ready():
+                            pending[i] = (task, pool.apply_async(run_task, (task,)))
+            result = pending.popleft()[1].get()  # re-raises a task's error
             submit()
             merge(result)
     finally:
