@@ -501,6 +501,10 @@ class _WorkerWatch:
     def __init__(self, pool):
         self.pool, self.known, self.codes = pool, {}, []
 
+    def follow(self, pool) -> None:
+        """Watch a new pool instead (the old one's workers were terminated on purpose)."""
+        self.pool, self.known = pool, {}
+
     def deaths(self) -> int:
         for process in list(self.pool._pool):
             self.known.setdefault(process.pid, process)
@@ -542,13 +546,17 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     # doing both in each of them (first imports of the BVH and of
     # numpy.random included) held back the first tasks by ~40 ms, 8 % of W2.
     compiled, key = (cs, scene_key(scene.render.seed)) if fork else (None, None)
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity, os.getpid(), compiled, key))
+
+    def start_pool():
+        return ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity, os.getpid(), compiled, key))
+
+    pool = start_pool()
+    watch = _WorkerWatch(pool)
     try:
         # A bounded window of tasks in flight, merged strictly in task order:
         # the plan is never materialised, however many samples it has.
         pending = collections.deque()  # (task, its AsyncResult)
         tasks = iter(tasks)
-        watch = _WorkerWatch(pool)
 
         def submit() -> None:
             task = next(tasks, None)
@@ -563,10 +571,14 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
                     raise RenderInterrupted
                 pending[0][1].wait(POLL_SECONDS)
                 if watch.deaths():
-                    # The pool replaces a dead worker but loses the task it held.  A
-                    # task's result depends on the task alone, so every unfinished one
-                    # is submitted again (a duplicate is harmless) and the image is
-                    # the same as if nothing had happened.
+                    # A dead worker's task is lost, and if it died waiting for work it
+                    # took the pool's task-queue lock with it, so the pool is replaced
+                    # whole.  A task's result depends on the task alone: every
+                    # unfinished one is submitted again and the image is unchanged.
+                    pool.terminate()
+                    pool.join()
+                    pool = start_pool()
+                    watch.follow(pool)
                     for i, (task, result) in enumerate(pending):
                         if not result.ready():
                             pending[i] = (task, pool.apply_async(run_task, (task,)))
