@@ -151,3 +151,23 @@ def test_cli_refuses_one_file_named_twice_or_an_input_as_output(tmp_path):
         assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npy", "link.npz"]
+
+
+def test_stale_temporaries_of_dead_writers_are_removed(tmp_path):
+    import subprocess
+    import sys
+    import time as clock
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    old = clock.time() - 3600
+    stale = tmp_path / f".wavefront-checkpoint-{dead.pid}-abc.npz"
+    fresh = tmp_path / f".wavefront-{dead.pid}-def.png"  # recent: maybe a writer on another machine
+    alive = tmp_path / f".wavefront-{os.getpid()}-ghi.png"  # its writer is running
+    other = tmp_path / ".wavefront-notes.txt"
+    for p in (stale, fresh, alive, other):
+        p.write_bytes(b"x")
+    for p in (stale, alive, other):
+        os.utime(p, (old, old))
+    check_output_path(str(tmp_path / "out.png"))
+    assert not stale.exists() and fresh.exists() and alive.exists() and other.exists()

@@ -123,10 +123,10 @@ def save_checkpoint(path: str, scene, film: Film, units_done: int) -> None:
     write goes through its symlink, if any, and never replaces anything but a
     regular file.
     """
-    from .output import publish, resolve_target
+    from .output import publish, resolve_target, temporary_prefix
 
     target = resolve_target(path)
-    fd, tmp = tempfile.mkstemp(prefix=".wavefront-checkpoint-", suffix=".npz", dir=os.path.dirname(target))
+    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix("checkpoint"), suffix=".npz", dir=os.path.dirname(target))
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez(f, fingerprint=scene_fingerprint(scene), units_done=np.int64(units_done),

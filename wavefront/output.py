@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import stat
 import tempfile
+import time
 import warnings
 
 import numpy as np
@@ -109,12 +111,51 @@ def check_output_path(path: str, *, image: bool = True, probe: bool = True) -> s
         raise OutputError(f"{path}: directory {directory} does not exist")
     if probe:
         try:
-            fd, tmp = tempfile.mkstemp(prefix=".wavefront-probe-", dir=directory)
+            fd, tmp = tempfile.mkstemp(prefix=temporary_prefix("probe"), dir=directory)
         except OSError as e:
             raise OutputError(f"{path}: cannot write in {directory} ({e.strerror or e})") from None
         os.close(fd)
         os.unlink(tmp)
+        remove_stale_temporaries(directory)
     return target
+
+
+def temporary_prefix(kind: str = "") -> str:
+    """Name prefix of a temporary file this process writes: ``.wavefront-[kind-]PID-``."""
+    return f".wavefront-{kind + '-' if kind else ''}{os.getpid()}-"
+
+
+_TEMPORARY = re.compile(r"^\.wavefront-(?:[a-z]+-)?(\d+)-")
+STALE_SECONDS = 600  # a temporary file untouched this long, whose writer is gone, is garbage
+
+
+def remove_stale_temporaries(directory: str) -> None:
+    """Remove temporary files a killed wavefront left in ``directory``.
+
+    ``kill -9`` during a write leaves its temporary file behind.  One is
+    removed only when its writer's process no longer exists *and* it has not
+    been touched for ``STALE_SECONDS`` (a render on another machine writing
+    to a shared directory has a process id that means nothing here, but it
+    keeps its file fresh).
+    """
+    now = time.time()
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return
+    for entry in entries:
+        m = _TEMPORARY.match(entry.name)
+        if m is None:
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False) or now - entry.stat().st_mtime < STALE_SECONDS:
+                continue
+            os.kill(int(m.group(1)), 0)
+        except ProcessLookupError:
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
+        except (OSError, OverflowError, ValueError):
+            continue
 
 
 _FS_IOC_GETFLAGS = 0x80086601  # Linux: a file's attribute flags (chattr)
@@ -197,7 +238,7 @@ def write_image(path: str, image, metadata: dict[str, str] | None = None) -> Non
     ext = output_format(path)
     metadata = {k: str(v) for k, v in (metadata or {}).items()}
     target = resolve_target(path)
-    fd, tmp = tempfile.mkstemp(prefix=".wavefront-", suffix=ext, dir=os.path.dirname(target))
+    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(), suffix=ext, dir=os.path.dirname(target))
     try:
         with os.fdopen(fd, "wb") as f:
             if ext == ".npy":
