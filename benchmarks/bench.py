@@ -131,7 +131,10 @@ def mitsuba_setup():
     if llvm:
         env["DRJIT_LIBLLVM_PATH"] = llvm
         try:
-            child("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); print('{}')", {}, env)
+            # a tiny render, not just set_variant: an LLVM older than Dr.Jit expects loads but fails to compile
+            child("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); d = mi.cornell_box(); "
+                  "d['sensor']['film'].update(width=8, height=8); mi.render(mi.load_dict(d), spp=1); print('{}')",
+                  {}, env)
             return "llvm_ad_rgb", env, f"Mitsuba 3 llvm_ad_rgb (LLVM: {llvm})"
         except RuntimeError as e:
             reason = f"llvm_ad_rgb failed ({e})"
@@ -322,9 +325,7 @@ def section_geometry(runs):
     data["one_core"] = one
     ratio = one["1M"]["ns_per_segment"] / one["1k"]["ns_per_segment"]
     data["segment_ratio_1M_1k"] = ratio
-    text += "
-
-" + table(
+    text += "\n\n" + table(
         ["terrain, one core", "triangles", "scene compile + BVH build", "time per path segment", "peak memory"],
         [[label, f"{int(r['triangles']):,}", f"{r['build']:.2f} s", f"{r['ns_per_segment']:.0f} ns",
           fmt_mib(r["peak"])] for label, r in one.items()])
