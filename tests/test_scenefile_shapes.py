@@ -146,7 +146,7 @@ def test_bad_mesh_file_names_scene_path_and_mesh(tmp_path, name, data, problem):
 
 def test_a_directory_is_not_a_mesh(tmp_path):
     (tmp_path / "dir.ply").mkdir()
-    assert "cannot read" in refused(mesh_scene(tmp_path, "dir.ply"))
+    assert "not a regular file" in refused(mesh_scene(tmp_path, "dir.ply"))
 
 
 def test_an_oversized_mesh_is_refused_before_it_is_read(tmp_path, monkeypatch):
@@ -210,3 +210,32 @@ def test_an_obj_with_too_many_faces_is_refused_before_parsing(tmp_path, monkeypa
     monkeypatch.setattr(mesh_files, "MAX_MESH_FACES", 5)
     data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 6
     assert "has more than 5 faces" in refused(mesh_scene(tmp_path, "many.obj", data=data))
+
+
+@pytest.mark.parametrize("path,value,where", [
+    ("quads[0].transform", [{"scale": 1e300}, {"scale": 1e300}], "quads[0]"),
+    ("boxes[0].transform", [{"scale": 1e-300}, {"scale": 1e-300}], "boxes[0]"),
+    ("triangles[0].transform", [{"translate": [1e308, 0, 0]}, {"translate": [1e308, 0, 0]}], "triangles[0]"),
+    ("spheres[0].transform", [{"scale": 1e300}, {"scale": 1e300}], "spheres[0]"),
+])
+def test_transforms_that_overflow_or_flatten_are_refused(path, value, where):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(with_value(path, value), source="bad.yaml")
+    assert str(e.value).startswith(f"bad.yaml: {where}"), str(e.value)
+
+
+def test_a_mesh_transform_that_overflows_is_refused(tmp_path):
+    scene = mesh_scene(tmp_path, "box.ply", mesh=trimesh.creation.box(), transform=[{"scale": 1e300}, {"scale": 1e300}])
+    assert "meshes[0].transform" in refused(scene)
+
+
+def test_a_device_is_not_a_mesh(tmp_path):
+    import os
+
+    if not os.path.exists("/dev/zero"):
+        pytest.skip("no /dev/zero")
+    path = tmp_path / "scene.yaml"
+    path.write_text("materials: {m: {type: lambertian}}\nmeshes: [{file: /dev/zero, material: m}]\n")
+    assert "unknown mesh format" in refused(path)
+    os.symlink("/dev/zero", tmp_path / "zero.ply")
+    assert "not a regular file" in refused(mesh_scene(tmp_path, "zero.ply"))

@@ -14,6 +14,7 @@ import os
 import warnings
 from typing import Any
 
+import numpy as np
 import yaml
 
 from .background import Sky, Solid
@@ -23,6 +24,7 @@ from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
 from .scene import INTEGRATORS, PRECISIONS, PointLight, RenderSettings, Scene
 from .shapes import Mesh, MeshError, Quad, Triangle, box_quads, read_mesh
 from .shapes import mesh as mesh_files
+from .shapes.sphere import world_sphere
 from .transform import Transform
 
 MAX_FILE_BYTES = 16 * 1024 * 1024  # a scene of a million spheres is ~60 MB; refuse more than a sane hand/script file
@@ -442,12 +444,16 @@ def _spheres(r: _Reader, value, materials: dict) -> list[Sphere]:
         path = f"spheres[{i}]"
         spec = r.mapping(spec, path, {"center", "radius", "material", "transform"}, {"center", "radius", "material"})
         material = _shape_material(r, spec, path, materials)
-        spheres.append(Sphere(
+        sphere = Sphere(
             center=r.vec3(spec["center"], f"{path}.center"),
             radius=r.number(spec["radius"], f"{path}.radius", low=0.0, low_open=True),
             material=material,
             transform=_transform(r, spec.get("transform"), f"{path}.transform", similarity_only=True),
-        ))
+        )
+        center, radius = world_sphere(sphere)
+        if not (np.isfinite(center).all() and math.isfinite(radius) and radius > 0.0):
+            r.fail(path, f"in world space the sphere is not finite (centre {center.tolist()}, radius {radius})")
+        spheres.append(sphere)
     return spheres
 
 
@@ -465,7 +471,9 @@ def _quads(r: _Reader, value, materials: dict) -> list[Quad]:
         area = math.hypot(*_cross(u, v))
         if not area > 1e-12 * math.hypot(*u) * math.hypot(*v) or not math.isfinite(area):
             r.fail(path, "degenerate quad: u and v are parallel (or zero)")
-        quads.append(Quad(corner, u, v, material, _transform(r, spec.get("transform"), f"{path}.transform")))
+        quad = Quad(corner, u, v, material, _transform(r, spec.get("transform"), f"{path}.transform"))
+        _check_world(r, path, np.stack(quad.world()), "quad")
+        quads.append(quad)
     return quads
 
 
@@ -478,7 +486,10 @@ def _boxes(r: _Reader, value, materials: dict) -> list[Quad]:
         lo, hi = r.vec3(spec["min"], f"{path}.min"), r.vec3(spec["max"], f"{path}.max")
         if not all(a < b for a, b in zip(lo, hi)):
             r.fail(f"{path}.max", f"must exceed min on every axis (min {list(lo)}, max {list(hi)})")
-        quads.extend(box_quads(lo, hi, material, _transform(r, spec.get("transform"), f"{path}.transform")))
+        faces = box_quads(lo, hi, material, _transform(r, spec.get("transform"), f"{path}.transform"))
+        for face in faces:
+            _check_world(r, path, np.stack(face.world()), "quad")
+        quads.extend(faces)
     return quads
 
 
@@ -497,7 +508,10 @@ def _triangles(r: _Reader, value, materials: dict) -> list[Triangle]:
         area = math.hypot(*_cross(e1, e2))
         if not area > 1e-12 * math.hypot(*e1) * math.hypot(*e2) or not math.isfinite(area):
             r.fail(f"{path}.vertices", "zero-area triangle (its vertices are collinear or repeated)")
-        triangles.append(Triangle((v0, v1, v2), material, _transform(r, spec.get("transform"), f"{path}.transform")))
+        triangle = Triangle((v0, v1, v2), material, _transform(r, spec.get("transform"), f"{path}.transform"))
+        w = triangle.world()
+        _check_world(r, path, np.stack((w[0], w[1] - w[0], w[2] - w[0])), "triangle")
+        triangles.append(triangle)
     return triangles
 
 
@@ -524,6 +538,14 @@ def _meshes(r: _Reader, value, materials: dict) -> list[Mesh]:
             data = read_mesh(file, max_faces=mesh_files.MAX_MESH_FACES - total)  # the limit is for the scene
         except MeshError as e:
             r.fail(f"{path}.file", f"{file}: {e}")
+        if transform is not None:
+            world = transform.points(data["vertices"].T)
+            v, f = world, data["faces"].T
+            with np.errstate(over="ignore", invalid="ignore"):
+                area2 = np.linalg.norm(np.cross(v[:, f[1]] - v[:, f[0]], v[:, f[2]] - v[:, f[0]], axis=0), axis=0)
+            if not np.isfinite(world).all() or not (np.isfinite(area2) & (area2 > 0)).all():
+                r.fail(f"{path}.transform", f"{file}: the transform takes triangles beyond floating-point range "
+                                            "(non-finite, or flattened to zero area)")
         total += data["faces"].shape[0]
         if data["dropped"]:
             warnings.warn(f"{r.source}: {path}.file: {file}: dropped {data['dropped']} degenerate (zero-area) "
@@ -532,3 +554,15 @@ def _meshes(r: _Reader, value, materials: dict) -> list[Mesh]:
                            transform=transform, vertex_normals=data["vertex_normals"], uv=data["uv"], file=file,
                            dropped=data["dropped"]))
     return meshes
+
+
+def _check_world(r: _Reader, path: str, rows: np.ndarray, kind: str) -> None:
+    """A flat shape after its transform: finite, and not flattened to zero area.
+
+    ``rows`` is ``(3, 3)``: a point, then the two edges spanning the shape."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        area = float(np.linalg.norm(np.cross(rows[1], rows[2])))
+    if not np.isfinite(rows).all() or not math.isfinite(area):
+        r.fail(path, f"in world space the {kind} is not finite (its transform overflows)")
+    if area <= 0.0:
+        r.fail(path, f"in world space the {kind} has zero area (its transform flattens it)")

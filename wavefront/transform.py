@@ -64,8 +64,10 @@ class Transform:
         return Transform.from_array(m)
 
     def then(self, other: Transform) -> Transform:
-        """``self`` first, then ``other``."""
-        return Transform.from_array(other.array @ self.array)
+        """``self`` first, then ``other``.  Overflow gives inf, which the
+        scene loader reports with the shape's YAML path."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return Transform.from_array(other.array @ self.array)
 
     @property
     def is_identity(self) -> bool:
@@ -74,11 +76,13 @@ class Transform:
     def points(self, p: np.ndarray) -> np.ndarray:
         """Points ``(3, N)`` mapped to world space."""
         m = self.array
-        return m[:3, :3] @ np.asarray(p, dtype=np.float64) + m[:3, 3:4]
+        with np.errstate(over="ignore", invalid="ignore"):  # checked by the caller
+            return m[:3, :3] @ np.asarray(p, dtype=np.float64) + m[:3, 3:4]
 
     def vectors(self, v: np.ndarray) -> np.ndarray:
         """Directions ``(3, N)`` (edges, offsets): no translation."""
-        return self.array[:3, :3] @ np.asarray(v, dtype=np.float64)
+        with np.errstate(over="ignore", invalid="ignore"):  # checked by the caller
+            return self.array[:3, :3] @ np.asarray(v, dtype=np.float64)
 
     def normals(self, n: np.ndarray) -> np.ndarray:
         """Surface normals ``(3, N)``: the inverse transpose keeps them

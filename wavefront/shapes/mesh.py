@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import stat
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -87,7 +88,10 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     if ext not in FORMATS:
         raise MeshError(f"unknown mesh format {ext!r} (expected one of: {', '.join(FORMATS)})")
     try:
-        size = os.stat(path).st_size
+        info = os.stat(path)
+        if not stat.S_ISREG(info.st_mode):  # a device or pipe (/dev/zero) would stream until the limit
+            raise MeshError("not a regular file")
+        size = info.st_size
         if size > max_bytes:
             raise MeshError(f"file is {size} bytes; the limit is {max_bytes}")
         with open(path, "rb") as f:
