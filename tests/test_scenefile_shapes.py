@@ -239,3 +239,42 @@ def test_a_device_is_not_a_mesh(tmp_path):
     assert "unknown mesh format" in refused(path)
     os.symlink("/dev/zero", tmp_path / "zero.ply")
     assert "not a regular file" in refused(mesh_scene(tmp_path, "zero.ply"))
+
+
+# -- fuzzing the shapes' keys, as tests/test_fuzz.py does the rest ----------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from .test_fuzz import BAD_VALUES, paths  # noqa: E402
+
+SHAPE_PATHS = [p for p, _, _ in paths(BASE)]
+
+
+@st.composite
+def mutated_shapes(draw):
+    doc = copy.deepcopy(BASE)
+    target = draw(st.sampled_from(SHAPE_PATHS))
+    parent, key = next((parent, key) for p, parent, key in paths(doc) if p == target)
+    if draw(st.booleans()):
+        parent[key] = draw(BAD_VALUES)
+    else:
+        del parent[key]
+    return target, doc
+
+
+@given(mutated_shapes())
+@settings(max_examples=300)
+@pytest.mark.filterwarnings("ignore::wavefront.scenefile.SceneWarning")
+def test_fuzzed_shapes_load_or_name_the_broken_path(case):
+    mutated, doc = case
+    try:
+        scene = scene_from_dict(doc, source="fuzz.yaml")
+    except SceneError as e:
+        assert str(e).startswith("fuzz.yaml") and "\n" not in str(e)
+        # an error may name a sibling key of the same shape (min against max, a degenerate pair of edges)
+        related = (e.path.startswith(mutated) or mutated.startswith(e.path) or mutated.startswith("materials")
+                   or e.path.split(".")[0] == mutated.split(".")[0])
+        assert related, (e.path, mutated, str(e))
+    else:
+        scene.compile()  # whatever loads, compiles

@@ -34,6 +34,9 @@ MAX_PIXELS = 1 << 28  # 268 M pixels: the float32 film alone would need 3 GiB
 MAX_SAMPLES_PER_PIXEL = 1 << 24
 MAX_DEPTH = 10_000
 MAX_SEED = 2**63 - 1
+# World-space coordinates and sizes of shapes: the ray tests square them, and
+# float64 squares overflow beyond ~1e154.
+MAX_COORDINATE = 1e150
 
 
 class SceneError(ValueError):
@@ -450,9 +453,13 @@ def _spheres(r: _Reader, value, materials: dict) -> list[Sphere]:
             material=material,
             transform=_transform(r, spec.get("transform"), f"{path}.transform", similarity_only=True),
         )
-        center, radius = world_sphere(sphere)
-        if not (np.isfinite(center).all() and math.isfinite(radius) and radius > 0.0):
-            r.fail(path, f"in world space the sphere is not finite (centre {center.tolist()}, radius {radius})")
+        try:
+            center, radius = world_sphere(sphere)
+        except ValueError as e:
+            r.fail(f"{path}.transform", str(e))
+        if not (np.abs(center).max() <= MAX_COORDINATE and 0.0 < radius <= MAX_COORDINATE):
+            r.fail(path, f"in world space the sphere's centre {center.tolist()} or radius {radius} is beyond "
+                         f"{MAX_COORDINATE:g} (or zero)")
         spheres.append(sphere)
     return spheres
 
@@ -538,12 +545,12 @@ def _meshes(r: _Reader, value, materials: dict) -> list[Mesh]:
             data = read_mesh(file, max_faces=mesh_files.MAX_MESH_FACES - total)  # the limit is for the scene
         except MeshError as e:
             r.fail(f"{path}.file", f"{file}: {e}")
-        if transform is not None:
-            world = transform.points(data["vertices"].T)
+        if transform is not None or np.abs(data["vertices"]).max() > MAX_COORDINATE:
+            world = (transform or Transform()).points(data["vertices"].T)
             v, f = world, data["faces"].T
             with np.errstate(over="ignore", invalid="ignore"):
                 area2 = np.linalg.norm(np.cross(v[:, f[1]] - v[:, f[0]], v[:, f[2]] - v[:, f[0]], axis=0), axis=0)
-            if not np.isfinite(world).all() or not (np.isfinite(area2) & (area2 > 0)).all():
+            if not np.abs(world).max() <= MAX_COORDINATE or not (np.isfinite(area2) & (area2 > 0)).all():
                 r.fail(f"{path}.transform", f"{file}: the transform takes triangles beyond floating-point range "
                                             "(non-finite, or flattened to zero area)")
         total += data["faces"].shape[0]
@@ -562,7 +569,7 @@ def _check_world(r: _Reader, path: str, rows: np.ndarray, kind: str) -> None:
     ``rows`` is ``(3, 3)``: a point, then the two edges spanning the shape."""
     with np.errstate(over="ignore", invalid="ignore"):
         area = float(np.linalg.norm(np.cross(rows[1], rows[2])))
-    if not np.isfinite(rows).all() or not math.isfinite(area):
-        r.fail(path, f"in world space the {kind} is not finite (its transform overflows)")
+    if not np.abs(rows).max() <= MAX_COORDINATE or not math.isfinite(area):  # also false for NaN
+        r.fail(path, f"in world space the {kind} reaches beyond {MAX_COORDINATE:g} (its transform overflows)")
     if area <= 0.0:
         r.fail(path, f"in world space the {kind} has zero area (its transform flattens it)")

@@ -93,11 +93,15 @@ class Transform:
         """The scale factor if this is a similarity (rotation, uniform scale
         and translation only), else ``None``: what a sphere may undergo."""
         linear = self.array[:3, :3]
-        gram = linear.T @ linear
+        size = float(np.abs(linear).max())
+        if not (size > 0 and math.isfinite(size)):
+            return None
+        unit = linear / size  # the test is scale-free, so a huge or tiny scale neither overflows nor underflows
+        gram = unit.T @ unit
         s2 = gram[0, 0]
         if s2 <= 0 or not np.allclose(gram, s2 * np.eye(3), rtol=1e-9, atol=1e-12 * s2):
             return None
-        return math.sqrt(s2)
+        return math.sqrt(s2) * size
 
 
 IDENTITY = Transform()
