@@ -22,7 +22,7 @@ from .camera import Camera
 from .geometry import Sphere
 from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
 from .scene import INTEGRATORS, PRECISIONS, PointLight, RenderSettings, Scene
-from .shapes import Mesh, MeshError, Quad, Triangle, box_quads, read_mesh
+from .shapes import Mesh, MeshError, Quad, Triangle, box_quads
 from .shapes import mesh as mesh_files
 from .shapes.sphere import world_sphere
 from .transform import Transform
@@ -542,24 +542,23 @@ def _meshes(r: _Reader, value, materials: dict) -> list[Mesh]:
         name = r.string(spec["file"], f"{path}.file")
         file = os.path.join(base, name)
         try:
-            data = read_mesh(file, max_faces=mesh_files.MAX_MESH_FACES - total)  # the limit is for the scene
+            mesh = Mesh.read(file, material, smooth=smooth, transform=transform,
+                             max_faces=mesh_files.MAX_MESH_FACES - total)  # the limit is for the scene
         except MeshError as e:
             r.fail(f"{path}.file", f"{file}: {e}")
-        if transform is not None or np.abs(data["vertices"]).max() > MAX_COORDINATE:
-            world = (transform or Transform()).points(data["vertices"].T)
-            v, f = world, data["faces"].T
+        if transform is not None or np.abs(mesh.vertices).max() > MAX_COORDINATE:
+            world = (transform or Transform()).points(mesh.vertices.T)
+            v, f = world, mesh.faces.T
             with np.errstate(over="ignore", invalid="ignore"):
                 area2 = np.linalg.norm(np.cross(v[:, f[1]] - v[:, f[0]], v[:, f[2]] - v[:, f[0]], axis=0), axis=0)
             if not np.abs(world).max() <= MAX_COORDINATE or not (np.isfinite(area2) & (area2 > 0)).all():
                 r.fail(f"{path}.transform", f"{file}: the transform takes triangles beyond floating-point range "
                                             "(non-finite, or flattened to zero area)")
-        total += data["faces"].shape[0]
-        if data["dropped"]:
-            warnings.warn(f"{r.source}: {path}.file: {file}: dropped {data['dropped']} degenerate (zero-area) "
+        total += len(mesh)
+        if mesh.dropped:
+            warnings.warn(f"{r.source}: {path}.file: {file}: dropped {mesh.dropped} degenerate (zero-area) "
                           "triangles", SceneWarning, stacklevel=3)
-        meshes.append(Mesh(vertices=data["vertices"], faces=data["faces"], material=material, smooth=smooth,
-                           transform=transform, vertex_normals=data["vertex_normals"], uv=data["uv"], file=file,
-                           dropped=data["dropped"]))
+        meshes.append(mesh)
     return meshes
 
 

@@ -56,6 +56,17 @@ class Mesh:
     def __len__(self) -> int:
         return self.faces.shape[0]
 
+    @classmethod
+    def read(cls, file, material: str | int, *, smooth: bool = False, transform: Transform | None = None,
+             max_faces: int | None = None) -> Mesh:
+        """A mesh from a file trimesh reads; ``dropped`` counts the degenerate
+        faces left out.  Raises :class:`MeshError` (see :func:`read_mesh`)."""
+        file = os.fspath(file)
+        data = read_mesh(file, max_faces=max_faces)
+        return cls(vertices=data["vertices"], faces=data["faces"], material=material, smooth=smooth,
+                   transform=transform, vertex_normals=data["vertex_normals"], uv=data["uv"], file=file,
+                   dropped=data["dropped"])
+
 
 def _check_ply_header(head: bytes, max_faces: int) -> None:
     """Refuse PLY element counts beyond the limits before trimesh allocates for them."""
