@@ -51,6 +51,7 @@ class Transform:
         """Rotation by ``angle_degrees`` about ``axis`` (non-zero), right-hand
         rule: ``rotate([0, 1, 0], a)`` is RTOW's ``rotate_y(a)``."""
         a = np.asarray(axis, dtype=np.float64)
+        a = a / np.abs(a).max()  # first to about 1, so the norm of a huge axis does not overflow
         a = a / np.linalg.norm(a)
         theta = math.radians(angle_degrees)
         c, s = math.cos(theta), math.sin(theta)
