@@ -134,7 +134,10 @@ def mitsuba_setup():
     if llvm:
         env["DRJIT_LIBLLVM_PATH"] = llvm
         try:
-            child("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); print('{}')", {}, env)
+            # a tiny render, not just set_variant: an LLVM older than Dr.Jit expects loads but fails to compile
+            child("import mitsuba as mi; mi.set_variant('llvm_ad_rgb'); d = mi.cornell_box(); "
+                  "d['sensor']['film'].update(width=8, height=8); mi.render(mi.load_dict(d), spp=1); print('{}')",
+                  {}, env)
             return "llvm_ad_rgb", env, f"Mitsuba 3 llvm_ad_rgb (LLVM: {llvm})"
         except RuntimeError as e:
             reason = f"llvm_ad_rgb failed ({e})"

@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from wavefront import bvh as bvh_module
 from wavefront.accel import BVH_THRESHOLD, build_intersector
 from wavefront.bvh import LEAF_SIZE, BVH, build_levels
 from wavefront.geometry import precision_for
@@ -45,17 +46,27 @@ def mixed_scene(rng, counts, spread, extent):
     return Primitives([spheres, quads, triangles], np.float64, exact_pad(np.float64, extent))
 
 
+def node_major_bvh(prims, extent):
+    """A BVH with its tables stored node-major, as big trees are, whatever its size."""
+    saved = bvh_module.NODE_MAJOR_NODES
+    bvh_module.NODE_MAJOR_NODES = 0
+    try:
+        return BVH(prims, extent)
+    finally:
+        bvh_module.NODE_MAJOR_NODES = saved
+
+
 def assert_same_hits(prims, origin, direction, t_max, extent=None):
     brute = prims.intersect(origin, direction, t_max)
     if extent is None:
         lo, hi = prims.bounds()
         extent = max(np.abs(origin).max(), np.abs(lo).max(), np.abs(hi).max()) * np.sqrt(3)
-    bvh = BVH(prims, extent)
-    hits = bvh.intersect(origin, direction, t_max)
-    np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
-    np.testing.assert_array_equal(hits.t, brute.t)
-    # any-hit agrees with the existence of a nearest hit, for both intersectors
-    np.testing.assert_array_equal(bvh.occluded(origin, direction, t_max), brute.primitive_idx >= 0)
+    for bvh in (BVH(prims, extent), node_major_bvh(prims, extent)):
+        hits = bvh.intersect(origin, direction, t_max)
+        np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
+        np.testing.assert_array_equal(hits.t, brute.t)
+        # any-hit agrees with the existence of a nearest hit
+        np.testing.assert_array_equal(bvh.occluded(origin, direction, t_max), brute.primitive_idx >= 0)
     np.testing.assert_array_equal(prims.occluded(origin, direction, t_max), brute.primitive_idx >= 0)
     return brute
 

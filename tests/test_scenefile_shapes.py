@@ -146,7 +146,7 @@ def test_bad_mesh_file_names_scene_path_and_mesh(tmp_path, name, data, problem):
 
 def test_a_directory_is_not_a_mesh(tmp_path):
     (tmp_path / "dir.ply").mkdir()
-    assert "cannot read" in refused(mesh_scene(tmp_path, "dir.ply"))
+    assert "not a regular file" in refused(mesh_scene(tmp_path, "dir.ply"))
 
 
 def test_an_oversized_mesh_is_refused_before_it_is_read(tmp_path, monkeypatch):
@@ -210,3 +210,71 @@ def test_an_obj_with_too_many_faces_is_refused_before_parsing(tmp_path, monkeypa
     monkeypatch.setattr(mesh_files, "MAX_MESH_FACES", 5)
     data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 6
     assert "has more than 5 faces" in refused(mesh_scene(tmp_path, "many.obj", data=data))
+
+
+@pytest.mark.parametrize("path,value,where", [
+    ("quads[0].transform", [{"scale": 1e300}, {"scale": 1e300}], "quads[0]"),
+    ("boxes[0].transform", [{"scale": 1e-300}, {"scale": 1e-300}], "boxes[0]"),
+    ("triangles[0].transform", [{"translate": [1e308, 0, 0]}, {"translate": [1e308, 0, 0]}], "triangles[0]"),
+    ("spheres[0].transform", [{"scale": 1e300}, {"scale": 1e300}], "spheres[0]"),
+])
+def test_transforms_that_overflow_or_flatten_are_refused(path, value, where):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(with_value(path, value), source="bad.yaml")
+    assert str(e.value).startswith(f"bad.yaml: {where}"), str(e.value)
+
+
+def test_a_mesh_transform_that_overflows_is_refused(tmp_path):
+    scene = mesh_scene(tmp_path, "box.ply", mesh=trimesh.creation.box(), transform=[{"scale": 1e300}, {"scale": 1e300}])
+    assert "meshes[0].transform" in refused(scene)
+
+
+def test_a_device_is_not_a_mesh(tmp_path):
+    import os
+
+    if not os.path.exists("/dev/zero"):
+        pytest.skip("no /dev/zero")
+    path = tmp_path / "scene.yaml"
+    path.write_text("materials: {m: {type: lambertian}}\nmeshes: [{file: /dev/zero, material: m}]\n")
+    assert "unknown mesh format" in refused(path)
+    os.symlink("/dev/zero", tmp_path / "zero.ply")
+    assert "not a regular file" in refused(mesh_scene(tmp_path, "zero.ply"))
+
+
+# -- fuzzing the shapes' keys, as tests/test_fuzz.py does the rest ----------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from .test_fuzz import BAD_VALUES, paths  # noqa: E402
+
+SHAPE_PATHS = [p for p, _, _ in paths(BASE)]
+
+
+@st.composite
+def mutated_shapes(draw):
+    doc = copy.deepcopy(BASE)
+    target = draw(st.sampled_from(SHAPE_PATHS))
+    parent, key = next((parent, key) for p, parent, key in paths(doc) if p == target)
+    if draw(st.booleans()):
+        parent[key] = draw(BAD_VALUES)
+    else:
+        del parent[key]
+    return target, doc
+
+
+@given(mutated_shapes())
+@settings(max_examples=300)
+@pytest.mark.filterwarnings("ignore::wavefront.scenefile.SceneWarning")
+def test_fuzzed_shapes_load_or_name_the_broken_path(case):
+    mutated, doc = case
+    try:
+        scene = scene_from_dict(doc, source="fuzz.yaml")
+    except SceneError as e:
+        assert str(e).startswith("fuzz.yaml") and "\n" not in str(e)
+        # an error may name a sibling key of the same shape (min against max, a degenerate pair of edges)
+        related = (e.path.startswith(mutated) or mutated.startswith(e.path) or mutated.startswith("materials")
+                   or e.path.split(".")[0] == mutated.split(".")[0])
+        assert related, (e.path, mutated, str(e))
+    else:
+        scene.compile()  # whatever loads, compiles

@@ -63,3 +63,9 @@ def test_normals_stay_perpendicular_under_any_scale(scale, a, b, angle):
     for tangent in (a, b):
         tt = t.vectors(tangent[:, None])[:, 0]
         assert abs(np.dot(tn, tt)) <= 1e-9 * np.linalg.norm(tn) * np.linalg.norm(tt) + 1e-12
+
+
+def test_a_huge_or_tiny_axis_is_just_a_direction():
+    x = np.array([[1.0], [0], [0]])
+    for scale in (1e300, 1e-300):
+        np.testing.assert_allclose(Transform.rotate((0, 0, scale), 90).points(x)[:, 0], [0, 1, 0], atol=1e-12)

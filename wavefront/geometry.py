@@ -85,6 +85,15 @@ class Sphere:
         set_field(self, "radius", radius(self, self.radius, "radius"))
         set_field(self, "material", material_field(self, self.material))
         set_field(self, "transform", transform_field(self, self.transform, "transform", similarity_only=True))
+        if self.transform is not None:  # where the ray tests will see it
+            scale = self.transform.uniform_scale()
+            center = self.transform.points(np.asarray(self.center, dtype=np.float64)[:, None])[:, 0]
+            world_radius = self.radius * scale
+            if not (np.abs(center).max() <= MAX_COORDINATE and MIN_RADIUS <= world_radius <= MAX_COORDINATE):
+                fail(self, "transform", f"in world space the sphere's centre {center.tolist()} or radius "
+                                        f"{world_radius:g} "
+                                        f"is out of range (coordinates within {MAX_COORDINATE:g}, radius at least "
+                                        f"{MIN_RADIUS:g})")
 
     @classmethod
     def many(cls, centers, radii, materials) -> list[Sphere]:
@@ -123,6 +132,21 @@ def radius(obj, value, path: str) -> float:
                         f"{'overflows' if not math.isfinite(r * r) else 'leaves no room for distances'}); "
                         f"the largest radius is {MAX_COORDINATE:g}")
     return r
+
+
+def check_world_flat(obj, rows: np.ndarray, kind: str) -> None:
+    """A flat shape after its transform: within range and not flattened.
+
+    ``rows (3, 3)`` are a world-space point and the two edges spanning the
+    shape; the ray tests square them, so they must stay within
+    ``MAX_COORDINATE``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        area = float(np.linalg.norm(np.cross(rows[1], rows[2])))
+    if not np.abs(rows).max() <= MAX_COORDINATE or not math.isfinite(area):  # also false for NaN
+        fail(obj, "transform", f"in world space the {kind} reaches beyond {MAX_COORDINATE:g} "
+                               "(its transform overflows)")
+    if area <= 0.0:
+        fail(obj, "transform", f"in world space the {kind} has zero area (its transform flattens it)")
 
 
 def material_field(obj, value, path: str = "material") -> str | int:

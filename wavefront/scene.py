@@ -368,7 +368,8 @@ def scene_extent(scene: Scene) -> float:
         float(np.linalg.norm(np.subtract(cam.look_at, cam.look_from, dtype=np.float64)))
     points[0] += abs(focus) * math.tan(math.radians(min(cam.defocus_angle, 179.0) / 2.0))
     center, radius = shape_points(scene)
-    reach = np.linalg.norm(center, axis=1) + radius
+    with np.errstate(over="ignore"):  # a finite but astronomically large scene has an infinite extent
+        reach = np.linalg.norm(center, axis=1) + radius
     return float(max(points.max(), reach.max(initial=0.0)))
 
 

@@ -51,6 +51,7 @@ class Transform:
         """Rotation by ``angle_degrees`` about ``axis`` (non-zero), right-hand
         rule: ``rotate([0, 1, 0], a)`` is RTOW's ``rotate_y(a)``."""
         a = np.asarray(axis, dtype=np.float64)
+        a = a / np.abs(a).max()  # first to about 1, so the norm of a huge axis does not overflow
         a = a / np.linalg.norm(a)
         theta = math.radians(angle_degrees)
         c, s = math.cos(theta), math.sin(theta)
@@ -64,8 +65,10 @@ class Transform:
         return Transform.from_array(m)
 
     def then(self, other: Transform) -> Transform:
-        """``self`` first, then ``other``."""
-        return Transform.from_array(other.array @ self.array)
+        """``self`` first, then ``other``.  Overflow gives inf, which the
+        scene loader reports with the shape's YAML path."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return Transform.from_array(other.array @ self.array)
 
     @property
     def is_identity(self) -> bool:
@@ -74,11 +77,13 @@ class Transform:
     def points(self, p: np.ndarray) -> np.ndarray:
         """Points ``(3, N)`` mapped to world space."""
         m = self.array
-        return m[:3, :3] @ np.asarray(p, dtype=np.float64) + m[:3, 3:4]
+        with np.errstate(over="ignore", invalid="ignore"):  # checked by the caller
+            return m[:3, :3] @ np.asarray(p, dtype=np.float64) + m[:3, 3:4]
 
     def vectors(self, v: np.ndarray) -> np.ndarray:
         """Directions ``(3, N)`` (edges, offsets): no translation."""
-        return self.array[:3, :3] @ np.asarray(v, dtype=np.float64)
+        with np.errstate(over="ignore", invalid="ignore"):  # checked by the caller
+            return self.array[:3, :3] @ np.asarray(v, dtype=np.float64)
 
     def normals(self, n: np.ndarray) -> np.ndarray:
         """Surface normals ``(3, N)``: the inverse transpose keeps them
@@ -89,11 +94,15 @@ class Transform:
         """The scale factor if this is a similarity (rotation, uniform scale
         and translation only), else ``None``: what a sphere may undergo."""
         linear = self.array[:3, :3]
-        gram = linear.T @ linear
+        size = float(np.abs(linear).max())
+        if not (size > 0 and math.isfinite(size)):
+            return None
+        unit = linear / size  # the test is scale-free, so a huge or tiny scale neither overflows nor underflows
+        gram = unit.T @ unit
         s2 = gram[0, 0]
         if s2 <= 0 or not np.allclose(gram, s2 * np.eye(3), rtol=1e-9, atol=1e-12 * s2):
             return None
-        return math.sqrt(s2)
+        return math.sqrt(s2) * size
 
 
 IDENTITY = Transform()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import stat
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -77,9 +78,27 @@ class Mesh:
         for key, value in mesh_fields(self, {"material": self.material, "smooth": self.smooth,
                                              "transform": self.transform}).items():
             set_field(self, key, value)
+        if self.transform is not None:  # every triangle where the ray tests will see it
+            v, f = self.transform.points(vertices.T), faces.T
+            with np.errstate(over="ignore", invalid="ignore"):
+                area2 = np.linalg.norm(np.cross(v[:, f[1]] - v[:, f[0]], v[:, f[2]] - v[:, f[0]], axis=0), axis=0)
+            if not np.abs(v).max() <= MAX_COORDINATE or not (np.isfinite(area2) & (area2 > 0)).all():
+                fail(self, "transform", "the transform takes triangles beyond floating-point range "
+                                        "(non-finite, or flattened to zero area)")
 
     def __len__(self) -> int:
         return self.faces.shape[0]
+
+    @classmethod
+    def read(cls, file, material: str | int, *, smooth: bool = False, transform: Transform | None = None,
+             max_faces: int | None = None) -> Mesh:
+        """A mesh from a file trimesh reads; ``dropped`` counts the degenerate
+        faces left out.  Raises :class:`MeshError` (see :func:`read_mesh`)."""
+        file = os.fspath(file)
+        data = read_mesh(file, max_faces=max_faces)
+        return cls(vertices=data["vertices"], faces=data["faces"], material=material, smooth=smooth,
+                   transform=transform, vertex_normals=data["vertex_normals"], uv=data["uv"], file=file,
+                   dropped=data["dropped"])
 
 
 def mesh_fields(obj, spec: dict) -> dict:
@@ -137,7 +156,10 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     if ext not in FORMATS:
         raise MeshError(f"unknown mesh format {ext!r} (expected one of: {', '.join(FORMATS)})")
     try:
-        size = os.stat(path).st_size
+        info = os.stat(path)
+        if not stat.S_ISREG(info.st_mode):  # a device or pipe (/dev/zero) would stream until the limit
+            raise MeshError("not a regular file")
+        size = info.st_size
         if size > max_bytes:
             raise MeshError(f"file is {size} bytes; the limit is {max_bytes}")
         with open(path, "rb") as f:

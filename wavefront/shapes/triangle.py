@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import T_MIN, material_field, position
+from ..geometry import T_MIN, check_world_flat, material_field, position
 from ..transform import Transform, transform_field
 from ..validation import describe, fail
 from ..vecmath import gather, normalize
@@ -48,6 +48,9 @@ class Triangle:
         set_field(self, "transform", transform_field(self, self.transform, "transform"))
         if not _spans_a_plane(tuple(b - a for a, b in zip(v0, v1)), tuple(b - a for a, b in zip(v0, v2))):
             fail(self, "vertices", "zero-area triangle (its vertices are collinear or repeated)")
+        if self.transform is not None:
+            w = self.world()
+            check_world_flat(self, np.stack((w[0], w[1] - w[0], w[2] - w[0])), "triangle")
 
     def world(self) -> np.ndarray:
         """The vertices in world space, shape (3 vertices, 3 coordinates)."""
@@ -82,14 +85,31 @@ class TriangleSet(ShapeKind):
         store = lambda a: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
         self.dtype = np.dtype(dtype)
         self.pad = pad
-        self.v0, self.e1, self.e2 = store(v0), store(v1 - v0), store(v2 - v0)
         self.normal = store(n / area)
         self.bounds_lo = np.minimum(np.minimum(v0, v1), v2)
         self.bounds_hi = np.maximum(np.maximum(v0, v1), v2)
-        self.box_lo, self.box_hi = store(self.bounds_lo - pad), store(self.bounds_hi + pad)
+        self._set_packed(np.concatenate((v0, v1 - v0, v2 - v0, self.bounds_lo - pad, self.bounds_hi + pad)).T
+                         .astype(dtype))
         self.vertex_normal = None if vertex_normal is None else store(vertex_normal)
         self.vertex_uv = None if vertex_uv is None else store(vertex_uv)
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
+
+    def _set_packed(self, packed: np.ndarray) -> None:
+        """The exact test's fields, one row of 15 per triangle (v0, e1, e2,
+        box_lo, box_hi): the BVH gathers a candidate's fields from one or two
+        cache lines instead of fifteen rows megabytes apart.  ``v0`` etc. are
+        ``(3, M)`` views of it, for brute force's blocks."""
+        self.packed = np.ascontiguousarray(packed)
+        self.v0, self.e1, self.e2, self.box_lo, self.box_hi = (self.packed[:, i:i + 3].T for i in range(0, 15, 3))
+
+    def gather(self, idx: np.ndarray) -> list:
+        rows = np.take(self.packed, idx, axis=0).T  # (15, P)
+        return [rows[i:i + 3] for i in range(0, 15, 3)]
+
+    def subset(self, idx: np.ndarray):
+        part = super().subset(idx)
+        part._set_packed(np.take(self.packed, idx, axis=0))
+        return part
 
     def bounds(self):
         return self.bounds_lo, self.bounds_hi
