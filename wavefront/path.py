@@ -326,7 +326,11 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, direction) -> N
     kind = table.kind.take(surface.material_idx)
     diffuse = diffuse_rows(cs, surface)
     live.specular = ~diffuse
-    live.bsdf_pdf = np.where(diffuse, np.maximum(dot(surface.normal, direction), 0.0) / np.pi, 0.0)
+    # float64 whatever the render's precision: a batch's field must not change
+    # type with its refill history, or MIS arithmetic (and the image) would
+    # depend on the chunk size
+    cos = dot(surface.normal, direction).astype(np.float64, copy=False)
+    live.bsdf_pdf = np.where(diffuse, np.maximum(cos, 0.0) / np.pi, 0.0)
     glass = np.flatnonzero(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal

@@ -98,9 +98,10 @@ class RussianRoulette:
 
 
 def _roulette_field(settings, value) -> RussianRoulette | None:
-    """``render.russian_roulette``: ``false`` (off), ``true`` (the defaults), a
-    mapping of :class:`RussianRoulette`'s parameters, or one."""
-    if value is False:
+    """``render.russian_roulette``: ``false`` or ``None`` (off), ``true`` (the
+    defaults), a mapping of :class:`RussianRoulette`'s parameters, or one.
+    (``None`` is what a settings object holds for off, so ``replace`` keeps it.)"""
+    if value is False or value is None:
         return None
     if value is True:
         return RussianRoulette()
