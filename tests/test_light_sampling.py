@@ -228,3 +228,14 @@ def test_bad_settings_name_their_yaml_path(value, path, words):
 def test_settings_survive_overrides():
     scene = with_settings(cornell(), light_sampling=False, russian_roulette=False).with_overrides(seed=3)
     assert scene.render.light_sampling is False and scene.render.russian_roulette is None
+
+
+def test_a_black_emitter_beside_a_lit_one_adds_nothing_and_breaks_nothing():
+    """A zero-power emitter is left out of the table; paths that hit it must
+    neither look it up (its index is -1) nor turn its zero into NaN."""
+    scene = sphere_lamp()
+    materials = dict(scene.materials, dark=Emissive((0, 0, 0)))
+    dark = scene.replace(materials=materials, spheres=[*scene.spheres, Sphere((-0.8, 1.2, 0.8), 0.3, "dark")])
+    image = render(dark.with_overrides(samples_per_pixel=8), workers=1)
+    assert np.isfinite(image).all()
+    assert len(dark.compile().emitters) == 1

@@ -236,10 +236,12 @@ def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
     of the material's pdf against the light sample's (from the previous vertex,
     which is the ray's origin)."""
     weight = np.ones(sel.size)
-    diffuse = np.flatnonzero(~live.specular.take(sel))
+    e = emitters.emitter_of.take(surface.primitive_idx.take(sel))
+    # a black emitter is not in the table (e = -1): it adds nothing, at any weight
+    diffuse = np.flatnonzero(~live.specular.take(sel) & (e >= 0))
     if diffuse.size:
         rows = sel.take(diffuse)
-        e = emitters.emitter_of.take(surface.primitive_idx.take(rows))
+        e = e.take(diffuse)
         p_light = emitters.pdf(e, gather(live.origin, rows), gather(surface.point, rows))
         weight[diffuse] = mis_weight(live.bsdf_pdf.take(rows), p_light)
     return weight
