@@ -42,7 +42,7 @@ import numpy as np
 
 from .batch import PathBatch, ShadowBatch
 from .units import Job
-from .materials import scatter_dielectric, scatter_lambertian, scatter_metal
+from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
 from .sampling import (bounce_dimension, light_choice_dimension, light_point_dimension, path_state, uniform_pairs,
                        uniform_pairs_at)
 from .scene import CompiledScene
@@ -269,14 +269,13 @@ def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, absorbe
     u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
     point = gather(surface.point, rows)
     light = emitters.sample(point, u_choice, u_point)
-    normal = gather(surface.normal, rows).astype(np.float64, copy=False)
-    cos = dot(normal, light.direction)
-    ok = np.flatnonzero((cos > 0.0) & (light.radiance.max(axis=0) > 0.0))
-    rows, cos, pdf = rows.take(ok), cos.take(ok), light.pdf.take(ok)
-    p_material = cos / np.pi  # the lambertian kernel samples cos / pi
+    normal = gather(surface.normal, rows)
+    p_material = lambertian_pdf(normal, light.direction)
+    ok = np.flatnonzero((p_material > 0.0) & (light.radiance.max(axis=0) > 0.0))
+    rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
     albedo = gather(cs.materials.albedo, surface.material_idx.take(rows))
-    scale = mis_weight(pdf, p_material) * p_material / pdf  # f cos / p = albedo / pi * cos / p
-    contribution = gather(live.throughput, rows) * albedo * gather(light.radiance, ok) * scale
+    f_cos = lambertian_eval(albedo, gather(normal, ok), gather(light.direction, ok))
+    contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
                        contribution=contribution, slot=live.slot.take(rows))
@@ -328,11 +327,10 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, direction) -> N
     kind = table.kind.take(surface.material_idx)
     diffuse = diffuse_rows(cs, surface)
     live.specular = ~diffuse
-    # float64 whatever the render's precision: a batch's field must not change
-    # type with its refill history, or MIS arithmetic (and the image) would
-    # depend on the chunk size
-    cos = dot(surface.normal, direction).astype(np.float64, copy=False)
-    live.bsdf_pdf = np.where(diffuse, np.maximum(cos, 0.0) / np.pi, 0.0)
+    # float64 whatever the render's precision (lambertian_pdf's type): a batch's
+    # field must not change type with its refill history, or MIS arithmetic
+    # (and the image) would depend on the chunk size
+    live.bsdf_pdf = np.where(diffuse, lambertian_pdf(surface.normal, direction), 0.0)
     glass = np.flatnonzero(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
