@@ -29,6 +29,17 @@ geometry   the Cornell box (RTOW book 3, 128x128, 64 spp) and a generated
            shapes, one-sided ``area`` emitters); the BVH build time at 1M
            triangles on one core; time per path segment at 1M against 1k
            triangles (one core, build excluded); peak memory of the 1M render.
+equal_error  noise per second: the Cornell box and scenes/cornell_spheres.yaml
+           (128x128, max_depth 50) rendered by wavefront (light sampling and
+           roulette on, its defaults) and by Mitsuba 3's ``path`` integrator
+           (same max depth, its default roulette from depth 5) at several
+           sample counts; each image's MSE against that renderer's own
+           converged image (rendered once, cached in benchmarks/references/
+           as float16 .npy), so differences between the two material models
+           do not count as noise; the efficiency ratio
+           ``(time_wavefront * MSE_wavefront) / (time_mitsuba * MSE_mitsuba)``
+           (median of runs; below 1, wavefront is ahead), and wavefront with
+           light sampling on against off (both off: the book estimator).
 distributed  the final scene on Dask LocalClusters of 1 and 2 workers against
            the plain local render (1 and 2 processes), and Dask's overhead per
            task (cluster start-up excluded, one warm-up render each).
@@ -368,6 +379,135 @@ DASK_CHILD = textwrap.dedent("""
 """)
 
 
+EQUAL_WAVEFRONT_CHILD = textwrap.dedent("""
+    import json, sys, time
+    import numpy as np
+    import dataclasses, wavefront
+    args = json.loads(sys.argv[1])
+    scene = wavefront.load_scene(args["scene"]).with_overrides(**args["overrides"])
+    scene = scene.replace(render=dataclasses.replace(scene.render, **args.get("settings", {})))
+    r = wavefront.render_scene(scene, workers=args.get("workers"))
+    np.save(args["out"], r.image)
+    print(json.dumps({"elapsed": r.stats.elapsed, "segments": r.stats.segments}))
+""")
+
+EQUAL_MITSUBA_CHILD = textwrap.dedent("""
+    import json, sys, time, tempfile
+    import numpy as np, mitsuba as mi
+    args = json.loads(sys.argv[1])
+    mi.set_variant(args["variant"])
+    sys.path.insert(0, args["bench_dir"])
+    from mitsuba_scene import mitsuba_scene_dict
+    import wavefront
+    scene = wavefront.load_scene(args["scene"]).with_overrides(**args["overrides"])
+    mscene = mi.load_dict(mitsuba_scene_dict(scene, mi, workdir=tempfile.mkdtemp()))
+    spp = scene.render.samples_per_pixel
+    np.array(mi.render(mscene, spp=min(spp, 16), seed=10**6))  # warm-up: JIT compilation is not timed
+    # at most 1024 spp per call: one llvm_ad_rgb wavefront of 128x128x16384 samples fails to compile
+    passes = [min(1024, spp - k) for k in range(0, spp, 1024)]
+    t = time.perf_counter()
+    image = sum(np.array(mi.render(mscene, spp=n, seed=scene.render.seed * 1000 + k)) * n
+                for k, n in enumerate(passes)) / spp
+    elapsed = time.perf_counter() - t
+    np.save(args["out"], image)
+    print(json.dumps({"elapsed": elapsed}))
+""")
+
+EQUAL_ERROR_SCENES = (("Cornell box", "scenes/cornell_box.yaml"), ("Cornell spheres", "scenes/cornell_spheres.yaml"))
+EQUAL_ERROR_SIZE = 128
+EQUAL_ERROR_SPP = (4, 16, 64)
+# Reference sample counts: far above the largest measured count (64), so a
+# reference's own error adds at most ~1/32 (wavefront) or ~1/256 (Mitsuba) to a
+# measured MSE.  cornell_spheres' wavefront reference has 2048 (time on the
+# shared 2-core machine).
+REFERENCE_SPP = {"wavefront": 4096, "mitsuba": 16384}
+REFERENCE_SPP_OF_SCENE = {"scenes/cornell_spheres.yaml": {"wavefront": 2048}}
+REFERENCES = ROOT / "benchmarks" / "references"
+
+
+def _mse(image_path, reference):
+    import numpy as np
+
+    image = np.load(image_path).astype(np.float64)
+    return float(((image - reference) ** 2).mean())
+
+
+def _reference(label, scene, renderer, variant, env, folder):
+    """A renderer's own converged image of ``scene``, rendered once and cached."""
+    import numpy as np
+
+    REFERENCES.mkdir(parents=True, exist_ok=True)
+    spp = REFERENCE_SPP_OF_SCENE.get(scene, {}).get(renderer, REFERENCE_SPP[renderer])
+    stem = Path(scene).stem
+    path = REFERENCES / f"{stem}_{EQUAL_ERROR_SIZE}_{renderer}{'_' + variant if renderer == 'mitsuba' else ''}_{spp}spp.npy"
+    if not path.exists():
+        out = folder / f"ref_{stem}_{renderer}.npy"
+        overrides = {"width": EQUAL_ERROR_SIZE, "height": EQUAL_ERROR_SIZE, "samples_per_pixel": spp, "seed": 77}
+        if renderer == "wavefront":
+            child(EQUAL_WAVEFRONT_CHILD, {"scene": scene, "overrides": overrides, "out": str(out)})
+        else:
+            child(EQUAL_MITSUBA_CHILD, {"scene": scene, "overrides": overrides, "out": str(out), "variant": variant,
+                                        "bench_dir": str(ROOT / "benchmarks")}, env)
+        np.save(path, np.load(out).astype(np.float16))  # float16: ~100 KB, far below the noise it measures
+        print(f"  cached {path.relative_to(ROOT)} ({label}, {renderer}, {spp} spp)", flush=True)
+    return np.load(path).astype(np.float64)
+
+
+def section_equal_error(runs):
+    import tempfile
+
+    variant, env, note = mitsuba_setup()
+    folder = Path(tempfile.mkdtemp(prefix="wavefront-equal-error-"))
+    rows, nee_rows, data = [], [], {}
+    for label, scene in EQUAL_ERROR_SCENES:
+        ref_wf = _reference(label, scene, "wavefront", variant, env, folder)
+        ref_mi = _reference(label, scene, "mitsuba", variant, env, folder) if variant else None
+        data[label] = {}
+        for spp in EQUAL_ERROR_SPP:
+            results = {"wavefront": [], "book": [], "mitsuba": []}
+            for run in range(runs):
+                overrides = {"width": EQUAL_ERROR_SIZE, "height": EQUAL_ERROR_SIZE, "samples_per_pixel": spp,
+                             "seed": 1000 + run}
+                for key, settings in (("wavefront", {}), ("book", {"light_sampling": False,
+                                                                   "russian_roulette": False})):
+                    out = folder / f"{key}.npy"
+                    w = child(EQUAL_WAVEFRONT_CHILD, {"scene": scene, "overrides": overrides, "settings": settings,
+                                                      "out": str(out)})
+                    results[key].append((w["elapsed"], _mse(out, ref_wf)))
+                if variant:
+                    out = folder / "mitsuba.npy"
+                    m = child(EQUAL_MITSUBA_CHILD, {"scene": scene, "overrides": overrides, "out": str(out),
+                                                    "variant": variant, "bench_dir": str(ROOT / "benchmarks")}, env)
+                    results["mitsuba"].append((m["elapsed"], _mse(out, ref_mi)))
+            med = {k: (statistics.median(t for t, _ in v), statistics.median(e for _, e in v))
+                   for k, v in results.items() if v}
+            data[label][spp] = {k: {"time": t, "mse": e} for k, (t, e) in med.items()}
+            (tw, ew), (tb, eb) = med["wavefront"], med["book"]
+            if variant:
+                tm, em = med["mitsuba"]
+                ratio = statistics.median(a[0] * a[1] / (b[0] * b[1])
+                                          for a, b in zip(results["wavefront"], results["mitsuba"]))
+                data[label][spp]["ratio"] = ratio
+                rows.append([label, spp, f"{tw:.2f} s", f"{ew:.3g}", f"{tm:.2f} s", f"{em:.3g}", f"{ratio:.2f}"])
+            nee = statistics.median(b[0] * b[1] / (a[0] * a[1]) for a, b in zip(results["wavefront"], results["book"]))
+            data[label][spp]["light_sampling_gain"] = nee
+            nee_rows.append([label, spp, f"{tw:.2f} s", f"{ew:.3g}", f"{tb:.2f} s", f"{eb:.3g}", f"{nee:.1f}x"])
+    text = ""
+    if variant:
+        text += table(["scene (128x128)", "spp", "wavefront time", "wavefront MSE", "Mitsuba time", "Mitsuba MSE",
+                       "efficiency ratio (wf / Mitsuba)"], rows) + "\n\n"
+    text += table(["scene (128x128)", "spp", "light sampling on: time", "MSE", "off (book estimator): time", "MSE",
+                   "efficiency gain of light sampling"], nee_rows)
+    return (f"Baseline: {note}, its path integrator (max_depth 50, roulette from depth 5). wavefront: "
+            "light sampling and roulette on (its defaults) on all cores; the book estimator is both off. "
+            f"Medians of {runs} runs, each a fresh process with its own seed; wall times of the render (Mitsuba's "
+            "JIT compilation excluded by a warm-up, wavefront's scene compile included). MSE against each "
+            f"renderer's own reference (wavefront {REFERENCE_SPP['wavefront']} spp, 2048 for cornell_spheres; "
+            f"Mitsuba {REFERENCE_SPP['mitsuba']} spp; cached in benchmarks/references/); efficiency ratio = "
+            "(time x MSE) of wavefront over "
+            f"Mitsuba's.\n\n{text}"), data
+
+
 def section_distributed(runs):
     try:
         import dask.distributed  # noqa: F401
@@ -501,12 +641,12 @@ def plot_scaling(data, path):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--section", choices=("all", "workloads", "geometry", "scaling", "memory", "budget",
-                                              "capacity", "distributed"),
+    parser.add_argument("--section", choices=("all", "workloads", "geometry", "equal_error", "scaling", "memory",
+                                              "budget", "capacity", "distributed"),
                         default="all")
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    sections = (("workloads", "geometry", "scaling", "memory", "budget", "capacity", "distributed")
+    sections = (("workloads", "geometry", "equal_error", "scaling", "memory", "budget", "capacity", "distributed")
                 if args.section == "all"
                 else (args.section,))
     everything = {}

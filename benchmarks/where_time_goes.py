@@ -34,6 +34,11 @@ STAGES = (
     ("lambertian kernel", "materials.py", "scatter_lambertian"),
     ("metal kernel", "materials.py", "scatter_metal"),
     ("dielectric kernel", "materials.py", "scatter_dielectric"),
+    ("light sampling: choosing points on emitters", "path.py", "sample_lights"),
+    ("  emitter samplers", "lights.py", "sample"),
+    ("light sampling: shadow rays (any-hit)", "path.py", "trace_shadow_rays"),
+    ("MIS weights of emission hits", "path.py", "emission_weight"),
+    ("Russian roulette", "path.py", "russian_roulette"),
     ("random numbers at bounces", "sampling.py", "uniform_pairs_at"),
     ("compaction (PathBatch.take)", "batch.py", "take"),
 )

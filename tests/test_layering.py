@@ -10,7 +10,7 @@ LAYERS = [
     {"vecmath", "sampling", "validation", "transform", "memory"},
     {"geometry", "camera", "materials", "background", "batch", "units", "output"},
     {"film", "shapes"},  # shapes: the subpackage counts as one module
-    {"bvh", "accel"},
+    {"bvh", "accel", "lights"},
     {"scene"},
     {"scenefile"},
     {"path", "whitted"},

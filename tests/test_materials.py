@@ -76,3 +76,28 @@ def test_dielectric_is_lossless_and_splits_by_schlick():
     expected = r0 + (1 - r0) * (1 - cos) ** 5
     p = reflected.mean()
     assert abs(p - expected) < 5 * np.sqrt(expected * (1 - expected) / n)
+
+
+def test_lambertian_pdf_matches_its_sampler_and_eval_over_pdf_is_the_albedo():
+    """The density MIS uses integrates to one over directions, equals the
+    histogram of scatter_lambertian's directions, and eval / pdf is the albedo
+    the kernel returns (so light and material sampling weigh the same BSDF)."""
+    from scipy import stats
+
+    from wavefront.materials import lambertian_eval, lambertian_pdf, scatter_lambertian
+    from wavefront.sampling import path_state, random_unit_vector, scene_key, uniform_pairs
+
+    n = 200_000
+    state = path_state(scene_key(3), np.arange(n, dtype=np.uint64))
+    u, v = uniform_pairs(state, 0), uniform_pairs(state, 1)
+    normal = np.repeat(np.array([[0.6], [0.0], [0.8]]), n, axis=1)
+    uniform = random_unit_vector(u[0], u[1])
+    integral = 4 * np.pi * lambertian_pdf(normal, uniform)
+    assert abs(integral.mean() - 1) < 5 * integral.std() / np.sqrt(n)
+    albedo = np.repeat(np.array([[0.2], [0.5], [0.9]]), n, axis=1)
+    _, d, _ = scatter_lambertian(-normal, normal, np.ones(n, bool), albedo, v)
+    cos = (d * normal).sum(axis=0)
+    # cos^2 is uniform on [0, 1] exactly when directions have density cos / pi
+    assert stats.chisquare(np.histogram(cos**2, bins=50, range=(0, 1))[0]).pvalue > 1e-3
+    assert stats.chisquare(np.histogram(cos, bins=50, range=(0, 1))[0]).pvalue < 1e-9  # a uniform-cos law fails
+    np.testing.assert_allclose(lambertian_eval(albedo, normal, d) / lambertian_pdf(normal, d), albedo, rtol=1e-12)

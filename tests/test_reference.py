@@ -88,7 +88,16 @@ def small_shapes():
     return Scene(spheres=[Sphere((0.7, 0.5, 0.6), 0.5, "glass")], quads=quads, triangles=triangles,
                  materials=materials, camera=Camera(look_from=(0, 2.8, 4), look_at=(0, 0.6, 0), vfov=50),
                  background=Solid((0.2, 0.2, 0.25)), width=16, height=9,
-                 render=RenderSettings(samples_per_pixel=SPP, max_depth=8))
+                 # The book estimator, which the reference tracer implements.  This
+                 # scene's light reaches some pixels through the fuzzy mirror by rare
+                 # paths; with light sampling the engine's variance there drops so far
+                 # that a reference which happened to miss them is rejected (measured:
+                 # |z| 5.3 at 192 spp and 6.9 at 768, while the engine's estimators with
+                 # and without light sampling agree at 8192 spp).  Light sampling is
+                 # checked against the book estimator in test_light_sampling.py, and
+                 # against this tracer on the three-spheres scene above.
+                 render=RenderSettings(samples_per_pixel=SPP, max_depth=8, light_sampling=False,
+                                       russian_roulette=False))
 
 
 @pytest.fixture(scope="module")

@@ -23,6 +23,14 @@ class PathBatch:
     slot: np.ndarray  # (N,) int64
     state: np.ndarray  # (N,) uint64
     depth: np.ndarray  # (N,) int32
+    # What multiple importance sampling and roulette need from the vertex the
+    # path last left: the solid-angle pdf of the direction it sampled there,
+    # whether that sampling was a delta (mirror, glass, camera: its emission
+    # hits count in full), and eta^2 accumulated over refractions.  None in
+    # integrators that need none of it (Whitted).
+    bsdf_pdf: np.ndarray | None = None  # (N,) float64
+    specular: np.ndarray | None = None  # (N,) bool
+    eta_scale: np.ndarray | None = None  # (N,) float64
 
     def __len__(self) -> int:
         return self.slot.shape[0]
@@ -34,11 +42,28 @@ class PathBatch:
         """
         if idx.dtype == bool:
             idx = np.flatnonzero(idx)
-        return PathBatch(*(np.take(getattr(self, f.name), idx, axis=-1) for f in fields(self)))
+        return PathBatch(*(None if (a := getattr(self, f.name)) is None else np.take(a, idx, axis=-1)
+                           for f in fields(self)))
 
     @staticmethod
     def concat(a: PathBatch, b: PathBatch) -> PathBatch:
         if len(a) == 0:
             return b
-        return PathBatch(*(np.concatenate((getattr(a, f.name), getattr(b, f.name)), axis=-1)
+        return PathBatch(*(None if getattr(a, f.name) is None or getattr(b, f.name) is None else
+                           np.concatenate((getattr(a, f.name), getattr(b, f.name)), axis=-1)
                            for f in fields(a)))
+
+
+@dataclass(slots=True)
+class ShadowBatch:
+    """Shadow rays of next-event estimation: each adds ``contribution`` to its
+    sample's radiance unless something lies between ``origin`` and ``t_max``."""
+
+    origin: np.ndarray  # (3, S)
+    direction: np.ndarray  # (3, S), unit
+    t_max: np.ndarray  # (S,)
+    contribution: np.ndarray  # (3, S), MIS-weighted, throughput included
+    slot: np.ndarray  # (S,) int64
+
+    def __len__(self) -> int:
+        return self.slot.shape[0]

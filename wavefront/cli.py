@@ -486,7 +486,8 @@ def summary_line(scene, s, output: str, timing: Timing | None = None) -> str:
                      f"(load {timing.load:.2f} s, write {timing.write:.2f} s)")
     parts += [
         f"{rate(s.samples) / 1e6:.2f} M samples/s",
-        f"{rate(s.segments) / 1e6:.2f} M path segments/s",
+        f"{rate(s.segments) / 1e6:.2f} M path segments/s"
+        + (f" (+ {rate(s.shadow_rays) / 1e6:.2f} M shadow rays/s)" if s.shadow_rays else ""),
         f"peak memory {s.peak_memory / 2**20:.0f} MiB",
         f"seed {s.seed}",
         f"{s.workers} worker{'s' if s.workers != 1 else ''}",

@@ -227,6 +227,22 @@ def scatter_lambertian(direction, normal, front_face, albedo, u):
     return albedo, normalize(scattered), absorbed
 
 
+def lambertian_pdf(normal, direction):
+    """The solid-angle density with which :func:`scatter_lambertian` picks
+    ``direction``: ``max(cos theta, 0) / pi`` about the same ``normal`` (both
+    ``(3, N)`` unit); shape ``(N,)``, float64.  Light sampling's MIS weights
+    need it; metal and glass have none (they are deltas)."""
+    cos = dot(normal, direction).astype(np.float64, copy=False)
+    return np.maximum(cos, 0.0) / np.pi
+
+
+def lambertian_eval(albedo, normal, direction):
+    """The BSDF times the cosine, ``albedo / pi * max(cos theta, 0)``, for
+    light arriving from ``direction``; shape ``(3, N)``.  Its ratio to
+    :func:`lambertian_pdf` is the albedo, the attenuation the kernel returns."""
+    return albedo * lambertian_pdf(normal, direction)
+
+
 def scatter_metal(direction, normal, front_face, albedo, fuzz, u):
     """Mirror reflection jittered by ``fuzz * random_unit_vector()``.
 

@@ -10,13 +10,28 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
 3. **escaped** paths add ``throughput * background`` and end;
 4. **emitted**: paths that hit an emitter end; those that struck its front
    side add ``throughput * color``;
-5. **scatter**: hits are routed by material kind, one kernel per kind
+5. **sample lights** (``render.light_sampling``): at every diffuse hit,
+   one point on an emitter, and a shadow ray towards it;
+6. **trace shadow rays**: their own batch and stage, through the any-hit
+   query; unoccluded ones add their MIS-weighted contribution;
+7. **scatter**: hits are routed by material kind, one kernel per kind
    present, and throughput is multiplied by the attenuation; absorbed paths
    end, and so do paths that have reached ``max_depth`` segments;
-6. **compact** the survivors.
+8. **roulette** (``render.russian_roulette``) ends some paths past its depth;
+9. **compact** the survivors.
 
 A path ends in one of the book's three ways: it hits a light, escapes to the
 background, or reaches the depth limit (contributing nothing more).
+
+Next-event estimation with multiple importance sampling (Veach 1997, ch. 9;
+pbrt-v4's wavefront ``SampleDirect``/``TraceShadowRays``; Mitsuba's ``path``)
+lights each lambertian vertex twice: by the light sample, weighted
+``p_light^2 / (p_light^2 + p_material^2)`` (the power heuristic), and by the
+material's own sample when it happens to hit an emitter, weighted the other
+way.  The two weights of any one light path sum to one, so the expectation is
+the book estimator's and only the noise changes.  Mirrors and glass are deltas
+(no light sample can land on their one direction): their emission hits count
+in full, as do those seen straight from the camera.
 """
 
 from __future__ import annotations
@@ -25,20 +40,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .batch import PathBatch
+from .batch import PathBatch, ShadowBatch
 from .units import Job
-from .materials import scatter_dielectric, scatter_lambertian, scatter_metal
-from .sampling import bounce_dimension, path_state, uniform_pairs, uniform_pairs_at
+from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
+from .sampling import (bounce_dimension, light_choice_dimension, light_point_dimension, path_state, uniform_pairs,
+                       uniform_pairs_at)
 from .scene import CompiledScene
-from .vecmath import gather, scatter, scatter_add
+from .vecmath import dot, gather, scatter, scatter_add
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
+# A shadow ray stops this fraction short of the light's surface, so that it
+# cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
+# the light than that is missed, 1e-4 of the distance.
+SHADOW_EPSILON = 1e-4
+# Roulette never keeps a path with certainty (Mitsuba's cap): a path whose
+# throughput stays near 1 (a white furnace) still ends in finite time.
+ROULETTE_MAX_SURVIVAL = 0.95
 
 
 @dataclass
 class TraceStats:
     segments: int = 0  # rays traced (camera rays + scattered rays)
     samples: int = 0
+    shadow_rays: int = 0  # next-event estimation's shadow rays (not counted in segments)
 
 
 def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
@@ -63,6 +87,9 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
         slot=np.arange(start, stop, dtype=np.int64),
         state=state,
         depth=np.zeros(n, dtype=np.int32),
+        bsdf_pdf=np.zeros(n),
+        specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
+        eta_scale=np.ones(n),
     )
 
 
@@ -114,6 +141,9 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     """
     scene, frame, radiance, stats = begin_trace(cs, job, stats)
     kernels = kernels_present(cs.materials)
+    settings = scene.render
+    emitters = cs.emitters if settings.light_sampling and cs.emitters is not None and len(cs.emitters) else None
+    roulette = settings.russian_roulette
     live, next_slot = camera_paths(cs, frame, key, job, 0, 0), 0
     while True:
         live, next_slot = refill(cs, frame, key, job, live, next_slot, capacity)
@@ -124,9 +154,16 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         live, surface = escaped(cs, live, hits, radiance)
         if len(live) == 0:
             continue
-        absorbed = emitted(cs, live, surface, radiance)
+        absorbed = emitted(cs, live, surface, radiance, emitters)
+        if emitters is not None:
+            shadows = sample_lights(cs, emitters, live, surface, absorbed, settings.depth)
+            trace_shadow_rays(cs, shadows, radiance, stats)
         direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed)
-        live = advance(live, surface, direction, absorbed, scene.render.depth)
+        if emitters is not None or roulette is not None:
+            record_sampling(cs, live, surface, direction)
+        if roulette is not None:
+            absorbed = russian_roulette(live, absorbed, roulette.depth)
+        live = advance(live, surface, direction, absorbed, settings.depth)
     return radiance
 
 
@@ -159,12 +196,14 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     return live, surface
 
 
-def emitted(cs: CompiledScene, live: PathBatch, surface, radiance) -> np.ndarray:
+def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None) -> np.ndarray:
     """Stage 4: paths that hit an emitter end there, adding ``throughput *
     color`` if they struck its front side (emission is one-sided, as in RTOW
     book 3, pbrt and Mitsuba: a sphere emits outwards, a quad or triangle on
-    its ``cross(u, v)`` / ``cross(v1 - v0, v2 - v0)`` side).  Returns the
-    ``absorbed`` mask the later stages extend."""
+    its ``cross(u, v)`` / ``cross(v1 - v0, v2 - v0)`` side).  With light
+    sampling (``emitters`` given) a hit found by a diffuse bounce is weighted
+    by the power heuristic against the light sample that could have found it.
+    Returns the ``absorbed`` mask the later stages extend."""
     table = cs.materials
     absorbed = np.zeros(len(live), dtype=bool)
     emissive = table.code("emissive")
@@ -175,8 +214,80 @@ def emitted(cs: CompiledScene, live: PathBatch, surface, radiance) -> np.ndarray
         absorbed[sel] = True
         sel = sel[surface.front_face.take(sel)]
         m = surface.material_idx.take(sel)
-        scatter_add(radiance, live.slot.take(sel), gather(live.throughput, sel) * gather(table.emission, m))
+        value = gather(live.throughput, sel) * gather(table.emission, m)
+        if emitters is not None:
+            value *= emission_weight(emitters, live, surface, sel)
+        scatter_add(radiance, live.slot.take(sel), value)
     return absorbed
+
+
+def mis_weight(pdf_a, pdf_b):
+    """The power heuristic (Veach 1997, 9.2.3, beta = 2): the weight of a
+    sample drawn with density ``pdf_a`` when ``pdf_b`` could also have drawn it."""
+    a2 = pdf_a * pdf_a
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = a2 / (a2 + pdf_b * pdf_b)
+    return np.where(a2 > 0, w, 0.0)
+
+
+def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
+    """MIS weights ``(N,)`` of emission hits ``sel`` found by the material's
+    sampling: 1 after a delta vertex (or the camera), else the power heuristic
+    of the material's pdf against the light sample's (from the previous vertex,
+    which is the ray's origin)."""
+    weight = np.ones(sel.size)
+    e = emitters.emitter_of.take(surface.primitive_idx.take(sel))
+    # a black emitter is not in the table (e = -1): it adds nothing, at any weight
+    diffuse = np.flatnonzero(~live.specular.take(sel) & (e >= 0))
+    if diffuse.size:
+        rows = sel.take(diffuse)
+        e = e.take(diffuse)
+        p_light = emitters.pdf(e, gather(live.origin, rows), gather(surface.point, rows))
+        weight[diffuse] = mis_weight(live.bsdf_pdf.take(rows), p_light)
+    return weight
+
+
+def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
+    """Hits whose material is sampled with a density (lambertian, and phong
+    as lambertian): the vertices next-event estimation serves."""
+    table = cs.materials
+    kind = table.kind.take(surface.material_idx)
+    return np.isin(kind, (table.code("lambertian"), table.code("phong")))
+
+
+def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, absorbed, max_depth: int) -> ShadowBatch:
+    """Stage 5: one light sample per diffuse vertex, as a shadow ray.
+
+    Only paths allowed another segment take one (the shadow ray is that
+    segment), so light sampling and material sampling see paths of the same
+    lengths.  The contribution is
+    ``throughput * albedo / pi * cos * radiance * w_light / p_light``.
+    """
+    rows = np.flatnonzero(diffuse_rows(cs, surface) & ~absorbed & (live.depth + 1 < max_depth))
+    state, depth = live.state.take(rows), live.depth.take(rows)
+    u_point = uniform_pairs_at(state, light_point_dimension(depth))
+    u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
+    point = gather(surface.point, rows)
+    light = emitters.sample(point, u_choice, u_point)
+    normal = gather(surface.normal, rows)
+    p_material = lambertian_pdf(normal, light.direction)
+    ok = np.flatnonzero((p_material > 0.0) & (light.radiance.max(axis=0) > 0.0))
+    rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
+    albedo = gather(cs.materials.albedo, surface.material_idx.take(rows))
+    f_cos = lambertian_eval(albedo, gather(normal, ok), gather(light.direction, ok))
+    contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
+    return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype),
+                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
+                       contribution=contribution, slot=live.slot.take(rows))
+
+
+def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
+    """Stage 6: the any-hit query for every shadow ray; the unblocked add their contribution."""
+    if len(shadows) == 0:
+        return
+    stats.shadow_rays += len(shadows)
+    visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max))
+    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
 
 
 def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed):
@@ -203,6 +314,47 @@ def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed)
         scatter(direction, sel, d)
         absorbed[sel] = dead
     return direction, absorbed
+
+
+def record_sampling(cs: CompiledScene, live: PathBatch, surface, direction) -> None:
+    """After scattering: what the next vertex's MIS weight and roulette need.
+
+    Lambertian rows sampled ``cos / pi`` (taken about the same shading
+    normal the kernel used); every other kind is a delta.  Refraction
+    multiplies ``eta^2`` by the squared relative index crossed.
+    """
+    table = cs.materials
+    kind = table.kind.take(surface.material_idx)
+    diffuse = diffuse_rows(cs, surface)
+    live.specular = ~diffuse
+    # float64 whatever the render's precision (lambertian_pdf's type): a batch's
+    # field must not change type with its refill history, or MIS arithmetic
+    # (and the image) would depend on the chunk size
+    live.bsdf_pdf = np.where(diffuse, lambertian_pdf(surface.normal, direction), 0.0)
+    glass = np.flatnonzero(kind == table.code("dielectric"))
+    if glass.size:
+        # a transmitted direction leaves on the far side of the (ray-facing) normal
+        through = glass.take(np.flatnonzero(dot(gather(surface.normal, glass), gather(direction, glass)) < 0.0))
+        index = table.refraction_index.take(surface.material_idx.take(through)).astype(np.float64)
+        eta = np.where(surface.front_face.take(through), index, 1.0 / index)  # n_transmitted / n_incident
+        live.eta_scale[through] *= eta * eta
+
+
+def russian_roulette(live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
+    """Stage 8: paths that have traced at least ``start_depth`` segments go on
+    with probability ``q = min(max(throughput) * eta^2, 0.95)`` and divide
+    their throughput by ``q``; the others end.  Returns ``absorbed``."""
+    rows = np.flatnonzero(~absorbed & (live.depth + 1 >= start_depth))
+    if rows.size == 0:
+        return absorbed
+    survival = np.minimum(gather(live.throughput, rows).max(axis=0) * live.eta_scale.take(rows),
+                          ROULETTE_MAX_SURVIVAL)
+    u = uniform_pairs_at(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
+    survive = u < survival
+    absorbed[rows.take(np.flatnonzero(~survive))] = True
+    kept = rows.take(np.flatnonzero(survive))
+    scatter(live.throughput, kept, gather(live.throughput, kept) / survival[survive])
+    return absorbed
 
 
 def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> PathBatch:

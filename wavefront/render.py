@@ -65,6 +65,7 @@ class RenderStats:
     elapsed: float = 0.0  # seconds: compiling, planning, rendering, forming the film
     samples: int = 0
     segments: int = 0
+    shadow_rays: int = 0  # next-event estimation's shadow rays (path integrator)
     dropped: int = 0  # non-finite samples left out of their pixel
     units_done: int = 0
     units_total: int = 0
@@ -453,6 +454,7 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
             done_samples += unit.size
         stats.samples += trace_stats.samples
         stats.segments += trace_stats.segments
+        stats.shadow_rays += trace_stats.shadow_rays
         pid, rss = peak
         worker_peaks[pid] = max(worker_peaks.get(pid, 0), rss)
         if progress is not None:

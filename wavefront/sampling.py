@@ -61,9 +61,29 @@ def path_state(key: np.uint64, sample_id: np.ndarray) -> np.ndarray:
     return mix64(sample_id.astype(np.uint64, copy=False) ^ key)
 
 
+# Next-event estimation and Russian roulette draw from a block of their own
+# at every vertex, far above every bounce pair (depth is at most 10 000), so
+# turning them on or off shifts none of the numbers the material sampling
+# draws: with both off the image is bit for bit the book estimator's.  At the
+# vertex a path reaches after ``depth + 1`` segments:
+#   pair LIGHT_PAIRS + 2 depth      -> the point on the light (u0, u1)
+#   pair LIGHT_PAIRS + 2 depth + 1  -> which light (u0), roulette (u1)
+LIGHT_PAIRS = 1 << 24
+
+
 def bounce_dimension(depth: np.ndarray | int) -> np.ndarray | int:
-    """Index of the pair of uniforms a path draws at bounce ``depth``."""
+    """Index of the pair of uniforms a path draws at bounce ``depth`` (the material's sample)."""
     return CAMERA_PAIRS + depth
+
+
+def light_point_dimension(depth: np.ndarray | int) -> np.ndarray | int:
+    """Index of the pair choosing the point on the light at bounce ``depth``."""
+    return LIGHT_PAIRS + 2 * depth
+
+
+def light_choice_dimension(depth: np.ndarray | int) -> np.ndarray | int:
+    """Index of the pair choosing the light (first) and deciding roulette (second) at bounce ``depth``."""
+    return LIGHT_PAIRS + 2 * depth + 1
 
 
 _LOW32 = np.uint64(0xFFFFFFFF)

@@ -34,6 +34,7 @@ import numpy as np
 from .background import Background, Sky, Solid
 from .camera import Camera
 from .geometry import Sphere, position, precision_for
+from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
@@ -73,6 +74,51 @@ class PointLight:
 
 
 @dataclass(frozen=True)
+class RussianRoulette:
+    """Russian roulette: past ``depth`` segments a path continues with
+    probability ``q = min(max throughput component * eta^2, 0.95)`` and its
+    throughput is divided by ``q`` (unbiased), as in Mitsuba's ``path``.
+
+    =========  =======  =====================================================
+    parameter  default  meaning
+    =========  =======  =====================================================
+    ``depth``  5        segments every path traces before roulette may end
+                        it (1: a path may end at the first surface it sees)
+    =========  =======  =====================================================
+
+    ``eta^2`` is the product of the squared relative refraction indices the
+    path has crossed, so paths inside glass (whose throughput the engine does
+    not scale by ``1 / eta^2``) are not cut more often than outside.
+    """
+
+    depth: int = 5
+
+    def __post_init__(self):
+        object.__setattr__(self, "depth", integer(self, self.depth, "depth", low=1, high=MAX_DEPTH))
+
+
+def _roulette_field(settings, value) -> RussianRoulette | None:
+    """``render.russian_roulette``: ``false`` or ``None`` (off), ``true`` (the
+    defaults), a mapping of :class:`RussianRoulette`'s parameters, or one.
+    (``None`` is what a settings object holds for off, so ``replace`` keeps it.)"""
+    if value is False or value is None:
+        return None
+    if value is True:
+        return RussianRoulette()
+    if isinstance(value, RussianRoulette):
+        return value
+    if isinstance(value, Mapping):
+        unknown = sorted(set(map(str, value)) - {"depth"})
+        if unknown:
+            fail(settings, f"russian_roulette.{unknown[0]}", "unknown key (expected: depth)")
+        try:
+            return RussianRoulette(**value)
+        except SceneError as e:
+            raise e.within(source_of(settings), "russian_roulette") from None
+    fail(settings, "russian_roulette", f"expected false, true or a mapping like {{depth: 5}}, got {describe(value)}")
+
+
+@dataclass(frozen=True)
 class RenderSettings:
     """How to render.
 
@@ -87,7 +133,15 @@ class RenderSettings:
     ``precision``          auto      ``float32``, ``float64``, or ``auto``:
                                      float32 for scenes within 256 units of
                                      the origin (faster), else float64
+    ``light_sampling``     true      ``path``: next-event estimation towards
+                                     emissive shapes, combined with material
+                                     sampling by MIS (power heuristic)
+    ``russian_roulette``   depth 5   ``path``: :class:`RussianRoulette`
+                                     (``{depth: 5}``), or ``false``
     =====================  ========  ===========================================
+
+    With ``light_sampling: false`` and ``russian_roulette: false`` the path
+    integrator is the book's estimator, bit for bit.  Whitted ignores both.
     """
 
     samples_per_pixel: int = 100
@@ -95,6 +149,8 @@ class RenderSettings:
     seed: int = 0
     integrator: str = "path"
     precision: str = "auto"
+    light_sampling: bool = True
+    russian_roulette: RussianRoulette | None = field(default_factory=RussianRoulette)
 
     def __post_init__(self):
         set_field = object.__setattr__
@@ -108,6 +164,10 @@ class RenderSettings:
             set_field(self, "max_depth", integer(self, self.max_depth, "max_depth", low=low, high=MAX_DEPTH))
         set_field(self, "seed", integer(self, self.seed, "seed", low=0, high=MAX_SEED))
         set_field(self, "precision", string(self, self.precision, "precision", PRECISIONS))
+        if not isinstance(self.light_sampling, (bool, np.bool_)):
+            fail(self, "light_sampling", f"expected true or false, got {describe(self.light_sampling)}")
+        set_field(self, "light_sampling", bool(self.light_sampling))
+        set_field(self, "russian_roulette", _roulette_field(self, self.russian_roulette))
 
     @property
     def depth(self) -> int:
@@ -268,6 +328,7 @@ class CompiledScene:
     light_position: np.ndarray  # (3, L)
     light_color: np.ndarray  # (3, L)
     dtype: np.dtype
+    emitters: EmitterTable | None = None  # every emissive primitive, for light sampling (path)
 
     @classmethod
     def build(cls, scene: Scene) -> CompiledScene:
@@ -278,11 +339,13 @@ class CompiledScene:
         index = {name: i for i, name in enumerate(names)}
         table = MaterialTable.build([scene.materials[n] for n in names], names, dtype)
         extent = scene_extent(scene)
-        shapes = build_intersector(compile_shapes(scene, index, dtype, extent), extent)
+        primitives = compile_shapes(scene, index, dtype, extent)
+        emitters = EmitterTable.build(primitives, table) if scene.render.integrator == "path" else None
+        shapes = build_intersector(primitives, extent)
         nl = len(scene.lights)
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
-        return cls(scene, shapes, table, light_position, light_color, dtype)
+        return cls(scene, shapes, table, light_position, light_color, dtype, emitters)
 
 
 def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) -> Primitives:

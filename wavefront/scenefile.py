@@ -651,10 +651,19 @@ def _shapes(source: str, docs, key: str, cls, defined: set[str]) -> list:
     for i, spec in enumerate(docs):
         path = f"{key}[{i}]"
         shape = _build(source, path, cls, _mapping(source, spec, path, allowed, required))
-        if isinstance(shape.material, str) and shape.material not in defined:
-            raise SceneError(source, f"{path}.material", unknown_material(shape.material, defined))
+        _check_reference(source, path, shape.material, defined)
         shapes.append(shape)
     return shapes
+
+
+def _check_reference(source: str, path: str, material, defined: set[str]) -> None:
+    """A shape's material names a defined one or indexes one (checked here, at
+    the shape's own YAML path: boxes become quads before the scene sees them)."""
+    if isinstance(material, str) and material not in defined:
+        raise SceneError(source, f"{path}.material", unknown_material(material, defined))
+    if isinstance(material, int) and material >= len(defined):
+        raise SceneError(source, f"{path}.material", f"material index {material} is out of range "
+                                                     f"(the scene has {len(defined)} materials)")
 
 
 _MESH_KEYS = {"file", "material", "smooth", "transform"}
@@ -702,7 +711,6 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
         fields = {k: v for k, v in spec.items() if k != "file"}
         mesh = _build(source, path, Mesh, fields, vertices=data["vertices"], faces=data["faces"],
                       vertex_normals=data["vertex_normals"], uv=data["uv"], file=file, dropped=data["dropped"])
-        if isinstance(mesh.material, str) and mesh.material not in defined:
-            raise SceneError(source, f"{path}.material", unknown_material(mesh.material, defined))
+        _check_reference(source, path, mesh.material, defined)
         meshes.append(mesh)
     return meshes

@@ -58,9 +58,14 @@ def _cross(a, b):
 
 
 def _spans_a_plane(a, b) -> bool:
-    """Whether ``a`` and ``b`` are far enough from parallel to span a plane."""
-    area = math.hypot(*_cross(a, b))
-    return math.isfinite(area) and area > 1e-12 * math.hypot(*a) * math.hypot(*b)
+    """Whether ``a`` and ``b`` are far enough from parallel to span a plane,
+    with ``|a x b|^2`` (what the ray tests compute) neither underflowing to 0
+    nor overflowing: edges of 1e-266 are not parallel, but their area is 0
+    in float64."""
+    c = _cross(a, b)
+    area_squared = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+    return (math.isfinite(area_squared) and area_squared > 0.0
+            and math.sqrt(area_squared) > 1e-12 * math.hypot(*a) * math.hypot(*b))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,316 @@
+"""The scene's emitters as one table, and the samplers next-event estimation draws from.
+
+Every emissive sphere, quad and triangle (mesh triangles included) becomes
+one row of an :class:`EmitterTable`, built once when the scene is compiled.
+A light sample is drawn in two steps, as in pbrt-v4's ``PowerLightSampler``:
+an emitter is chosen with probability proportional to its emitted power
+(mean radiance over the RGB channels x area x pi, the flux of a one-sided
+Lambertian emitter), then a point on it:
+
+* spheres by the cone of directions they subtend (pbrt-v4 ``Sphere::Sample``,
+  Mitsuba's ``Sphere::sample_direction``): uniform in solid angle inside the
+  cone, so the pdf is the constant ``1 / (2 pi (1 - cos theta_max))``; a
+  point inside the sphere samples the whole sphere by area instead;
+* quads uniformly by area, ``corner + u0 u + u1 v``;
+* triangles uniformly by area through the square-root barycentric map
+  (``b0 = 1 - sqrt(u0)``, ``b1 = u1 sqrt(u0)``; Shirley & Chiu / pbrt);
+
+area densities are converted to solid angle at the reference point
+(``pdf_area * distance^2 / |cos theta_light|``).  Every sampler takes its
+uniforms as arguments and owns no state, so ``tests/test_lights.py`` can
+check each with chi-square tests and wrong samplers that must fail.
+
+Emission is one-sided (RTOW book 3, pbrt, Mitsuba): a sample on the back of
+a quad or triangle, or on a sphere seen from inside, carries no radiance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .materials import MaterialTable
+from .sampling import random_unit_vector
+from .shapes import Primitives, QuadSet, SphereSet, TriangleSet
+from .vecmath import dot, gather
+
+SPHERE, QUAD, TRIANGLE = 0, 1, 2  # emitter kinds
+# Below sin^2(1.5 degrees) the cone's 1 - cos(theta_max) cancels in floating
+# point; pbrt-v4 switches to the small-angle series there (sin^2 / 2).
+SMALL_CONE_SIN2 = 0.00068523
+
+
+@dataclass(slots=True)
+class LightSample:
+    """Points sampled on emitters as seen from reference points; one column per reference point.
+
+    ``pdf`` is per unit solid angle at the reference point and includes the
+    probability of choosing the emitter; ``radiance`` is zero where the sample
+    shows the emitter's back (one-sided emission) or the pdf is zero.
+    """
+
+    point: np.ndarray  # (3, N) on the emitter, float64
+    direction: np.ndarray  # (3, N) unit, reference point -> point
+    distance: np.ndarray  # (N,)
+    pdf: np.ndarray  # (N,) solid angle, emitter choice included
+    radiance: np.ndarray  # (3, N) emitted towards the reference point
+
+
+@dataclass(slots=True)
+class EmitterTable:
+    """Every emissive primitive of a scene, one column each (float64).
+
+    For a sphere ``origin`` is its centre and ``radius`` its radius; for a
+    quad ``origin, edge1, edge2`` are ``corner, u, v``; for a triangle
+    ``v0, v1 - v0, v2 - v0``.  ``normal`` is the front side's unit normal
+    (unused for spheres).  ``emitter_of`` maps a scene-wide primitive index to
+    its row (-1: not an emitter), which is how a path that hits an emitter by
+    scattering finds the light-sampling pdf its MIS weight needs.
+    """
+
+    kind: np.ndarray  # (E,) int8: SPHERE, QUAD or TRIANGLE
+    origin: np.ndarray  # (3, E)
+    edge1: np.ndarray  # (3, E)
+    edge2: np.ndarray  # (3, E)
+    normal: np.ndarray  # (3, E)
+    radius: np.ndarray  # (E,)
+    area: np.ndarray  # (E,)
+    radiance: np.ndarray  # (3, E)
+    pmf: np.ndarray  # (E,) probability of choosing each emitter, by power
+    cdf: np.ndarray  # (E,) its running sum, last entry exactly 1
+    emitter_of: np.ndarray  # (M,) int32, per scene-wide primitive
+
+    def __len__(self) -> int:
+        return self.kind.shape[0]
+
+    @classmethod
+    def build(cls, primitives: Primitives, materials: MaterialTable) -> EmitterTable:
+        """The emitters among ``primitives`` (in scene-wide index order).
+
+        A primitive is an emitter when its material is emissive with some
+        non-zero channel; zero-power emitters are left out (they could never
+        contribute, and a zero pmf would make their MIS weight undefined).
+        """
+        emissive = materials.kind == materials.code("emissive")
+        power_of_material = np.where(emissive, materials.emission.astype(np.float64).mean(axis=0), 0.0)
+        parts, emitter_of = [], np.full(len(primitives), -1, dtype=np.int32)
+        for shapes, offset in zip(primitives.kinds, primitives.offsets):
+            sel = np.flatnonzero(power_of_material[shapes.material_idx] > 0)
+            if sel.size == 0:
+                continue
+            f64 = lambda a: np.asarray(a, dtype=np.float64).take(sel, axis=-1)  # noqa: E731
+            zeros = np.zeros((3, sel.size))
+            if isinstance(shapes, SphereSet):
+                radius = f64(shapes.radius)
+                part = (SPHERE, f64(shapes.center), zeros, zeros, zeros, radius, 4.0 * np.pi * radius * radius)
+            elif isinstance(shapes, QuadSet):
+                u, v = f64(shapes.u), f64(shapes.v)
+                area = np.linalg.norm(np.cross(u, v, axis=0), axis=0)
+                part = (QUAD, f64(shapes.corner), u, v, f64(shapes.normal), np.zeros(sel.size), area)
+            elif isinstance(shapes, TriangleSet):
+                e1, e2 = f64(shapes.e1), f64(shapes.e2)
+                area = 0.5 * np.linalg.norm(np.cross(e1, e2, axis=0), axis=0)
+                part = (TRIANGLE, f64(shapes.v0), e1, e2, f64(shapes.normal), np.zeros(sel.size), area)
+            else:  # pragma: no cover - a new shape kind must say how it is sampled
+                raise TypeError(f"no light sampler for {type(shapes).__name__}")
+            material = shapes.material_idx.take(sel)
+            parts.append(part + (materials.emission.astype(np.float64)[:, material],))
+            emitter_of[offset + sel] = sum(p[1].shape[1] for p in parts[:-1]) + np.arange(sel.size)
+        if not parts:
+            empty3 = np.zeros((3, 0))
+            return cls(np.zeros(0, np.int8), empty3, empty3, empty3, empty3, np.zeros(0), np.zeros(0),
+                       empty3, np.zeros(0), np.zeros(0), emitter_of)
+        kind = np.concatenate([np.full(p[1].shape[1], p[0], dtype=np.int8) for p in parts])
+        origin, edge1, edge2, normal = (np.concatenate([p[k] for p in parts], axis=1) for k in (1, 2, 3, 4))
+        radius, area = (np.concatenate([p[k] for p in parts]) for k in (5, 6))
+        radiance = np.concatenate([p[7] for p in parts], axis=1)
+        power = radiance.mean(axis=0) * area * np.pi
+        pmf = power / power.sum()
+        cdf = np.cumsum(pmf)
+        cdf[-1] = 1.0  # so a uniform below 1 always finds an emitter
+        return cls(kind, origin, edge1, edge2, normal, radius, area, radiance, pmf, cdf, emitter_of)
+
+    # -- sampling ------------------------------------------------------------
+
+    def choose(self, u: np.ndarray) -> np.ndarray:
+        """Emitter indices for uniforms ``u (N,)``, each with probability ``pmf``."""
+        return np.minimum(np.searchsorted(self.cdf, u, side="right"), len(self) - 1)
+
+    def sample(self, reference: np.ndarray, u_choice: np.ndarray, u: np.ndarray) -> LightSample:
+        """One light sample per reference point.
+
+        Parameters
+        ----------
+        reference : ndarray of shape (3, N)
+            The points being lit.
+        u_choice : ndarray of shape (N,)
+            Uniform choosing the emitter.
+        u : ndarray of shape (2, N)
+            Uniforms choosing the point on it.
+        """
+        ref = reference.astype(np.float64, copy=False)
+        u = u.astype(np.float64, copy=False)
+        e = self.choose(u_choice)
+        n = ref.shape[1]
+        point, normal, pdf = np.empty((3, n)), np.empty((3, n)), np.empty(n)
+        kind = self.kind.take(e)
+        for code, sampler in ((SPHERE, self._sample_spheres), (QUAD, self._sample_quads),
+                              (TRIANGLE, self._sample_triangles)):
+            sel = np.flatnonzero(kind == code)
+            if sel.size:
+                p, nrm, pd = sampler(e.take(sel), gather(ref, sel), gather(u, sel))
+                point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
+        to_light = point - ref
+        distance = np.sqrt(dot(to_light, to_light))
+        direction = to_light / np.maximum(distance, np.finfo(np.float64).tiny)
+        front = dot(normal, direction) < 0.0  # the light faces the reference point
+        pdf *= self.pmf.take(e)
+        lit = front & (pdf > 0) & np.isfinite(pdf)
+        radiance = gather(self.radiance, e) * lit
+        return LightSample(point, direction, distance, pdf, radiance)
+
+    def _sample_spheres(self, e, ref, u):
+        return sample_sphere(self.origin[:, e], self.radius[e], ref, u)
+
+    def _sample_quads(self, e, ref, u):
+        point, pdf_area = sample_quad(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u)
+        normal = self.normal[:, e]
+        return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
+
+    def _sample_triangles(self, e, ref, u):
+        point, pdf_area = sample_triangle(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u)
+        normal = self.normal[:, e]
+        return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
+
+    def pdf(self, e: np.ndarray, reference: np.ndarray, point: np.ndarray) -> np.ndarray:
+        """Solid-angle pdf (emitter choice included) with which :meth:`sample`
+        picks the direction from ``reference (3, N)`` to ``point (3, N)`` on
+        emitter ``e (N,)``: what a path that found the emitter by scattering
+        needs for its MIS weight."""
+        ref = reference.astype(np.float64, copy=False)
+        point = point.astype(np.float64, copy=False)
+        kind = self.kind.take(e)
+        pdf = np.empty(e.shape[0])
+        spheres = np.flatnonzero(kind == SPHERE)
+        if spheres.size:
+            es = e.take(spheres)
+            pdf[spheres] = sphere_pdf(self.origin[:, es], self.radius[es], gather(ref, spheres),
+                                      gather(point, spheres))
+        flat = np.flatnonzero(kind != SPHERE)
+        if flat.size:
+            ef = e.take(flat)
+            pdf[flat] = area_to_solid_angle(1.0 / self.area[ef], gather(ref, flat), gather(point, flat),
+                                            self.normal[:, ef])
+        return pdf * self.pmf.take(e)
+
+
+# -- the samplers: uniforms in, (point, [normal,] pdf) out ---------------------
+
+def area_to_solid_angle(pdf_area, reference, point, normal):
+    """``pdf_area * distance^2 / |cos theta_light|`` (0 where the direction grazes the surface)."""
+    d = point - reference
+    distance_squared = dot(d, d)
+    cos_light = np.abs(dot(normal, d)) / np.sqrt(np.maximum(distance_squared, np.finfo(np.float64).tiny))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pdf = pdf_area * distance_squared / cos_light
+    return np.where(cos_light > 0, pdf, 0.0)
+
+
+def sample_quad(corner, u_edge, v_edge, u):
+    """Points uniform on the parallelograms ``corner + a u_edge + b v_edge``; ``(point (3, N), pdf_area (N,))``."""
+    point = corner + u[0] * u_edge + u[1] * v_edge
+    area = np.linalg.norm(np.cross(u_edge, v_edge, axis=0), axis=0)
+    return point, 1.0 / area
+
+
+def sample_triangle(v0, e1, e2, u):
+    """Points uniform on triangles ``(v0, v0 + e1, v0 + e2)`` by the square-root
+    map: ``b0 = 1 - sqrt(u0)`` has the density ``2 (1 - b0)`` of a uniform
+    point's barycentric, and ``b1 = u1 sqrt(u0)`` is uniform along the slice.
+    Returns ``(point (3, N), pdf_area (N,))``."""
+    s = np.sqrt(u[0])
+    b1 = u[1] * s
+    b2 = s - b1  # b0 = 1 - s
+    point = v0 + b1 * e1 + b2 * e2
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2, axis=0), axis=0)
+    return point, 1.0 / area
+
+
+def _cone(center, radius, reference):
+    """Axis (unit, reference -> centre), distance, sin^2 and 1 - cos of the cone's half-angle."""
+    axis = center - reference
+    distance = np.sqrt(dot(axis, axis))
+    axis = axis / np.maximum(distance, np.finfo(np.float64).tiny)
+    sin2_max = (radius / np.maximum(distance, np.finfo(np.float64).tiny)) ** 2
+    one_minus_cos_max = np.where(sin2_max < SMALL_CONE_SIN2, 0.5 * sin2_max,
+                                 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max)))
+    return axis, distance, sin2_max, one_minus_cos_max
+
+
+def _frame(z):
+    """Two unit vectors completing unit ``z (3, N)`` to an orthonormal basis
+    (Duff et al. 2017, "Building an Orthonormal Basis, Revisited": branch-free)."""
+    sign = np.copysign(1.0, z[2])
+    a = -1.0 / (sign + z[2])
+    b = z[0] * z[1] * a
+    x = np.stack((1.0 + sign * z[0] * z[0] * a, sign * b, -sign * z[0]))
+    y = np.stack((b, sign + z[1] * z[1] * a, -z[1]))
+    return x, y
+
+
+def sample_sphere(center, radius, reference, u):
+    """Points on spheres seen from ``reference``, uniform in the cone they subtend.
+
+    pbrt-v4's ``Sphere::Sample(ctx, u)``: ``cos theta`` uniform in
+    ``[cos theta_max, 1]`` about the axis to the centre, then the point where
+    that direction meets the sphere, computed from the angle ``alpha`` at the
+    centre (more accurate than intersecting a ray).  A reference point inside
+    a sphere samples it uniformly by area instead (its inside emits nothing,
+    so only the pdf matters there).
+
+    Returns
+    -------
+    point, normal : ndarray of shape (3, N)
+        ``normal`` is the outward normal at ``point``.
+    pdf : ndarray of shape (N,), per unit solid angle
+    """
+    axis, distance, sin2_max, one_minus_cos_max = _cone(center, radius, reference)
+    small = sin2_max < SMALL_CONE_SIN2
+    cos_theta = np.where(small, np.sqrt(np.maximum(0.0, 1.0 - sin2_max * u[0])), 1.0 - one_minus_cos_max * u[0])
+    sin2_theta = np.where(small, sin2_max * u[0], 1.0 - cos_theta * cos_theta)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sin_max = np.sqrt(sin2_max)
+        cos_alpha = sin2_theta / sin_max + cos_theta * np.sqrt(np.maximum(0.0, 1.0 - sin2_theta / sin2_max))
+    sin_alpha = np.sqrt(np.maximum(0.0, 1.0 - cos_alpha * cos_alpha))
+    phi = 2.0 * np.pi * u[1]
+    x, y = _frame(axis)
+    # the outward normal at the sampled point faces the reference point: -w in the cone's frame
+    normal = -(sin_alpha * np.cos(phi) * x + sin_alpha * np.sin(phi) * y + cos_alpha * axis)
+    pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
+    inside = np.flatnonzero(distance <= radius)
+    if inside.size:
+        outward = random_unit_vector(u[0].take(inside), u[1].take(inside))
+        normal[:, inside] = outward
+        pdf[inside] = 0.0  # set below, from the point
+    point = center + radius * normal
+    if inside.size:
+        r = radius.take(inside) if np.ndim(radius) else radius
+        pdf[inside] = area_to_solid_angle(1.0 / (4.0 * np.pi * r * r), gather(reference, inside),
+                                          gather(point, inside), gather(normal, inside))
+    return point, normal, pdf
+
+
+def sphere_pdf(center, radius, reference, point):
+    """The solid-angle pdf of :func:`sample_sphere` for the direction from
+    ``reference`` to ``point`` on the sphere (a point of the visible cap when
+    the reference is outside)."""
+    _, distance, _, one_minus_cos_max = _cone(center, radius, reference)
+    pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
+    inside = np.flatnonzero(distance <= radius)
+    if inside.size:
+        c, r = gather(center, inside), radius.take(inside)
+        p = gather(point, inside)
+        normal = (p - c) / r
+        pdf[inside] = area_to_solid_angle(1.0 / (4.0 * np.pi * r * r), gather(reference, inside), p, normal)
+    return pdf
