@@ -586,7 +586,9 @@ def section_budget(runs):
     tmp = Path(tempfile.mkdtemp(prefix="wavefront-bench-"))
     many = tmp / "random200k.yaml"
     write_random_scene(200_000, many)
-    cases = [("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", [], ("256M", "1G")),
+    cases = [("three_spheres 400x225, 4 spp (PNG floor)", "scenes/three_spheres.yaml", ["--spp", "4"],
+              ("150M",)),
+             ("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", [], ("256M", "1G")),
              ("three_spheres 3840x2160, 1 spp", "scenes/three_spheres.yaml",
               ["--width", "3840", "--height", "2160", "--spp", "1"], ("256M", "1G")),
              ("three_spheres 7680x4320, 1 spp", "scenes/three_spheres.yaml",

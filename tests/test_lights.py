@@ -305,3 +305,16 @@ def test_emitter_table_holds_every_emissive_primitive_and_chooses_by_power():
 def test_scene_without_emitters_has_an_empty_table():
     scene = Scene(materials={"m": Lambertian()}, spheres=[Sphere((0, 0, 0), 1, "m")])
     assert len(scene.compile().emitters) == 0
+
+
+def test_an_emitter_of_astronomical_power_is_still_sampled():
+    """Power = radiance x area overflowed to inf and made the pmf NaN: the light vanished."""
+    import numpy as np
+
+    from wavefront import Emissive, Lambertian, Quad, Scene
+
+    scene = Scene(quads=[Quad((-1e6, 10, -1e6), (2e6, 0, 0), (0, 0, 2e6), "lamp"),
+                         Quad((-1, 0, -1), (0, 0, 2), (2, 0, 0), "floor")],
+                  materials={"lamp": Emissive((1e300, 1e300, 1e300)), "floor": Lambertian()}, width=4, height=4)
+    table = scene.compile().emitters
+    assert np.isfinite(table.pmf).all() and np.isclose(table.pmf.sum(), 1.0)

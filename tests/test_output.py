@@ -171,3 +171,26 @@ def test_stale_temporaries_of_dead_writers_are_removed(tmp_path):
         os.utime(p, (old, old))
     check_output_path(str(tmp_path / "out.png"))
     assert not stale.exists() and fresh.exists() and alive.exists() and other.exists()
+
+
+def test_a_full_disk_while_writing_an_exr_is_an_oserror(tmp_path, monkeypatch):
+    """OpenEXR reports a failed write as RuntimeError; the CLI's rescue path catches OSError."""
+    import OpenEXR
+
+    class Full:
+        def __init__(self, *args):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def write(self, path):
+            raise RuntimeError(f'Failed to write pixel data to image file "{path}". No space left on device.')
+
+    monkeypatch.setattr(OpenEXR, "File", Full)
+    with pytest.raises(OSError, match="No space left"):
+        write_image(str(tmp_path / "x.exr"), IMAGE)
+    assert not list(tmp_path.iterdir())

@@ -125,7 +125,12 @@ class EmitterTable:
         origin, edge1, edge2, normal = (np.concatenate([p[k] for p in parts], axis=1) for k in (1, 2, 3, 4))
         radius, area = (np.concatenate([p[k] for p in parts]) for k in (5, 6))
         radiance = np.concatenate([p[7] for p in parts], axis=1)
-        power = radiance.mean(axis=0) * area * np.pi
+        # Relative power, each factor scaled by its maximum first: emission and
+        # area have no upper bound, and an overflow to inf made the pmf NaN
+        # (the light vanished).  pi is common to all and left out.
+        mean = radiance.mean(axis=0)
+        with np.errstate(over="ignore"):
+            power = (mean / mean.max()) * (area / area.max())
         pmf = power / power.sum()
         cdf = np.cumsum(pmf)
         cdf[-1] = 1.0  # so a uniform below 1 always finds an emitter

@@ -291,7 +291,7 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
 
 
 def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed):
-    """Stage 5: hits are routed by material kind, one kernel per kind present;
+    """Stage 7: hits are routed by material kind, one kernel per kind present;
     throughput is multiplied by the attenuation.  Returns the new directions
     and the ``absorbed`` mask."""
     table = cs.materials
@@ -358,7 +358,7 @@ def russian_roulette(live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
 
 
 def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> PathBatch:
-    """Stage 6: paths continue from their hit points; absorbed paths end, and
+    """Stage 9: paths continue from their hit points; absorbed paths end, and
     so do paths that have used ``max_depth`` segments (they contribute
     nothing more); the survivors are compacted."""
     live.origin = surface.point

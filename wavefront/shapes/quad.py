@@ -40,7 +40,7 @@ class Quad:
         set_field(self, "material", material_field(self, self.material))
         set_field(self, "transform", transform_field(self, self.transform, "transform"))
         if not _spans_a_plane(self.u, self.v):
-            fail(self, "", "degenerate quad: u and v are parallel (or zero)")
+            fail(self, "", _flat_problem("quad", self.u, self.v, "degenerate quad: u and v are parallel (or zero)"))
         if self.transform is not None:
             check_world_flat(self, np.stack(self.world()), "quad")
 
@@ -55,6 +55,17 @@ class Quad:
 
 def _cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _flat_problem(kind: str, a, b, degenerate: str) -> str:
+    """Why two edges do not span a usable plane: parallel, or an area float64 cannot hold."""
+    c = _cross(a, b)
+    area_squared = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+    if not math.isfinite(area_squared):
+        return f"{kind} too large: its area squared overflows float64 (keep edges below about 1e77)"
+    if area_squared == 0.0 and math.hypot(*c) > 0.0:
+        return f"{kind} too small: its area squared underflows float64 (keep edges above about 1e-77)"
+    return degenerate
 
 
 def _spans_a_plane(a, b) -> bool:

@@ -36,7 +36,7 @@ class Triangle:
     transform: Transform | None = None
 
     def __post_init__(self):
-        from .quad import _spans_a_plane
+        from .quad import _flat_problem, _spans_a_plane
 
         set_field = object.__setattr__
         vertices = self.vertices
@@ -46,8 +46,10 @@ class Triangle:
         set_field(self, "vertices", (v0, v1, v2))
         set_field(self, "material", material_field(self, self.material))
         set_field(self, "transform", transform_field(self, self.transform, "transform"))
-        if not _spans_a_plane(tuple(b - a for a, b in zip(v0, v1)), tuple(b - a for a, b in zip(v0, v2))):
-            fail(self, "vertices", "zero-area triangle (its vertices are collinear or repeated)")
+        e1, e2 = tuple(b - a for a, b in zip(v0, v1)), tuple(b - a for a, b in zip(v0, v2))
+        if not _spans_a_plane(e1, e2):
+            fail(self, "vertices", _flat_problem("triangle", e1, e2,
+                                                 "zero-area triangle (its vertices are collinear or repeated)"))
         if self.transform is not None:
             w = self.world()
             check_world_flat(self, np.stack((w[0], w[1] - w[0], w[2] - w[0])), "triangle")
