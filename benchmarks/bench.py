@@ -587,7 +587,7 @@ def section_budget(runs):
     many = tmp / "random200k.yaml"
     write_random_scene(200_000, many)
     cases = [("three_spheres 400x225, 4 spp (PNG floor)", "scenes/three_spheres.yaml", ["--spp", "4"],
-              ("150M",)),
+              ("160M",)),
              ("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", [], ("256M", "1G")),
              ("three_spheres 3840x2160, 1 spp", "scenes/three_spheres.yaml",
               ["--width", "3840", "--height", "2160", "--spp", "1"], ("256M", "1G")),
