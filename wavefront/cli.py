@@ -352,7 +352,7 @@ def _render(args, signals: _Signals, started: float) -> int:
             finally:
                 signals.rendering = False
             s = result.stats
-            if s.units_done == 0:  # stopped before a single unit finished: there is no image
+            if s.units_done == 0 and signals.stop is not None:  # stopped before any unit finished: no image
                 print(f"wavefront: interrupted ({signal.Signals(signals.stop).name}) before any sample was "
                       f"finished; nothing was written", file=sys.stderr)
                 return 128 + signals.stop
