@@ -179,12 +179,12 @@ class EmitterTable:
         return sample_sphere(self.origin[:, e], self.radius[e], ref, u)
 
     def _sample_quads(self, e, ref, u):
-        point, pdf_area = sample_quad(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u)
+        point, pdf_area = sample_quad(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u, self.area[e])
         normal = self.normal[:, e]
         return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
 
     def _sample_triangles(self, e, ref, u):
-        point, pdf_area = sample_triangle(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u)
+        point, pdf_area = sample_triangle(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u, self.area[e])
         normal = self.normal[:, e]
         return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
 
@@ -222,23 +222,28 @@ def area_to_solid_angle(pdf_area, reference, point, normal):
     return np.where(cos_light > 0, pdf, 0.0)
 
 
-def sample_quad(corner, u_edge, v_edge, u):
-    """Points uniform on the parallelograms ``corner + a u_edge + b v_edge``; ``(point (3, N), pdf_area (N,))``."""
+def sample_quad(corner, u_edge, v_edge, u, area=None):
+    """Points uniform on the parallelograms ``corner + a u_edge + b v_edge``; ``(point (3, N), pdf_area (N,))``.
+
+    ``area (N,)``, if given, is the quads' area (the emitter table holds it,
+    so no cross product per sample)."""
     point = corner + u[0] * u_edge + u[1] * v_edge
-    area = np.linalg.norm(np.cross(u_edge, v_edge, axis=0), axis=0)
+    if area is None:
+        area = np.linalg.norm(np.cross(u_edge, v_edge, axis=0), axis=0)
     return point, 1.0 / area
 
 
-def sample_triangle(v0, e1, e2, u):
+def sample_triangle(v0, e1, e2, u, area=None):
     """Points uniform on triangles ``(v0, v0 + e1, v0 + e2)`` by the square-root
     map: ``b0 = 1 - sqrt(u0)`` has the density ``2 (1 - b0)`` of a uniform
     point's barycentric, and ``b1 = u1 sqrt(u0)`` is uniform along the slice.
-    Returns ``(point (3, N), pdf_area (N,))``."""
+    Returns ``(point (3, N), pdf_area (N,))``; ``area`` as for :func:`sample_quad`."""
     s = np.sqrt(u[0])
     b1 = u[1] * s
     b2 = s - b1  # b0 = 1 - s
     point = v0 + b1 * e1 + b2 * e2
-    area = 0.5 * np.linalg.norm(np.cross(e1, e2, axis=0), axis=0)
+    if area is None:
+        area = 0.5 * np.linalg.norm(np.cross(e1, e2, axis=0), axis=0)
     return point, 1.0 / area
 
 

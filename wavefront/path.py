@@ -155,12 +155,13 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if len(live) == 0:
             continue
         absorbed = emitted(cs, live, surface, radiance, emitters)
+        diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
         if emitters is not None:
-            shadows = sample_lights(cs, emitters, live, surface, absorbed, settings.depth)
+            shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth)
             trace_shadow_rays(cs, shadows, radiance, stats)
         direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed)
-        if emitters is not None or roulette is not None:
-            record_sampling(cs, live, surface, direction)
+        if diffuse is not None:
+            record_sampling(cs, live, surface, diffuse, direction)
         if roulette is not None:
             absorbed = russian_roulette(live, absorbed, roulette.depth)
         live = advance(live, surface, direction, absorbed, settings.depth)
@@ -255,7 +256,8 @@ def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
     return np.isin(kind, (table.code("lambertian"), table.code("phong")))
 
 
-def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, absorbed, max_depth: int) -> ShadowBatch:
+def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, diffuse, absorbed,
+                  max_depth: int) -> ShadowBatch:
     """Stage 5: one light sample per diffuse vertex, as a shadow ray.
 
     Only paths allowed another segment take one (the shadow ray is that
@@ -263,7 +265,7 @@ def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, absorbe
     lengths.  The contribution is
     ``throughput * albedo / pi * cos * radiance * w_light / p_light``.
     """
-    rows = np.flatnonzero(diffuse_rows(cs, surface) & ~absorbed & (live.depth + 1 < max_depth))
+    rows = np.flatnonzero(diffuse & ~absorbed & (live.depth + 1 < max_depth))
     state, depth = live.state.take(rows), live.depth.take(rows)
     u_point = uniform_pairs_at(state, light_point_dimension(depth))
     u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
@@ -316,7 +318,7 @@ def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed)
     return direction, absorbed
 
 
-def record_sampling(cs: CompiledScene, live: PathBatch, surface, direction) -> None:
+def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direction) -> None:
     """After scattering: what the next vertex's MIS weight and roulette need.
 
     Lambertian rows sampled ``cos / pi`` (taken about the same shading
@@ -325,7 +327,6 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, direction) -> N
     """
     table = cs.materials
     kind = table.kind.take(surface.material_idx)
-    diffuse = diffuse_rows(cs, surface)
     live.specular = ~diffuse
     # float64 whatever the render's precision (lambertian_pdf's type): a batch's
     # field must not change type with its refill history, or MIS arithmetic
