@@ -334,11 +334,13 @@ class CompiledScene:
     def build(cls, scene: Scene) -> CompiledScene:
         from .accel import build_intersector
 
-        dtype = precision_of(scene)
+        # world-space bounds once: a million spheres make them a second's work
+        bounds = shape_points(scene)
+        dtype = precision_of(scene, bounds)
         names = list(scene.materials)
         index = {name: i for i, name in enumerate(names)}
         table = MaterialTable.build([scene.materials[n] for n in names], names, dtype)
-        extent = scene_extent(scene)
+        extent = scene_extent(scene, bounds)
         primitives = compile_shapes(scene, index, dtype, extent)
         emitters = EmitterTable.build(primitives, table) if scene.render.integrator == "path" else None
         shapes = build_intersector(primitives, extent)
@@ -421,8 +423,10 @@ def _attribute_material(shape):
     return shape.material
 
 
-def scene_extent(scene: Scene) -> float:
-    """Distance from the origin within which every ray starts and every hit lies."""
+def scene_extent(scene: Scene, shapes: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """Distance from the origin within which every ray starts and every hit lies.
+
+    ``shapes`` is :func:`shape_points` of ``scene`` if the caller has it already."""
     cam = scene.camera
     points = [cam.look_from, cam.look_at] + [light.position for light in scene.lights]
     points = np.linalg.norm(np.array(points, dtype=np.float64).reshape(-1, 3), axis=1)
@@ -430,27 +434,26 @@ def scene_extent(scene: Scene) -> float:
     focus = cam.focus_dist if cam.focus_dist is not None else \
         float(np.linalg.norm(np.subtract(cam.look_at, cam.look_from, dtype=np.float64)))
     points[0] += abs(focus) * math.tan(math.radians(min(cam.defocus_angle, 179.0) / 2.0))
-    center, radius = shape_points(scene)
+    center, radius = shapes if shapes is not None else shape_points(scene)
     with np.errstate(over="ignore"):  # a finite but astronomically large scene has an infinite extent
         reach = np.linalg.norm(center, axis=1) + radius
     return float(max(points.max(), reach.max(initial=0.0)))
 
 
-def precision_of(scene: Scene) -> np.dtype:
+def precision_of(scene: Scene, shapes: tuple[np.ndarray, np.ndarray] | None = None) -> np.dtype:
     """The floating-point type the wavefront runs in (see ``geometry.FLOAT32_EXTENT``).
 
     ``auto`` keeps float64 for any scene with quads, triangles or meshes: their
     exact tests divide by a determinant that float32 would leave with too few
-    digits on slivers and grazing rays.
+    digits on slivers and grazing rays.  ``shapes`` as for :func:`scene_extent`.
     """
     choice = scene.render.precision
     if choice != "auto":
         return np.dtype(choice)
     if scene.quads or scene.triangles or scene.meshes:
         return np.dtype(np.float64)
-    from .shapes.sphere import world_sphere
-
-    return precision_for([world_sphere(s)[1] for s in scene.spheres], scene_extent(scene))
+    shapes = shapes if shapes is not None else shape_points(scene)
+    return precision_for(shapes[1][:len(scene.spheres)], scene_extent(scene, shapes))  # spheres come first
 
 
 def turntable(scene: Scene, frame: int, frames: int) -> Scene:
