@@ -188,7 +188,9 @@ def test_many_frames_are_checked_in_linear_time(tmp_path):
                            scene=str(SCENES / "three_spheres.yaml"))
     start = time.monotonic()
     assert len(check_paths(args)) == 20_000
-    assert time.monotonic() - start < 20  # quadratic took 41 s for 2,000 frames
+    # quadratic took 41 s for 2,000 frames, so 20,000 would take over an hour;
+    # linear takes a second or two, and the margin absorbs a loaded CI machine
+    assert time.monotonic() - start < 120
 
 
 def test_a_nul_byte_in_a_frame_name_is_one_line(tmp_path):

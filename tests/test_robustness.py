@@ -100,7 +100,9 @@ def test_sigterm_while_loading_gives_up_within_a_second(tmp_path):
         sent = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=30)
-    assert time.monotonic() - sent < 1.0
+    # within a second on an idle machine; an unresponsive loader would wait for
+    # the writer (forever), so a margin for a loaded CI machine loses nothing
+    assert time.monotonic() - sent < 5.0
     assert proc.returncode == 128 + signal.SIGTERM and "interrupted" in err and "Traceback" not in err
     assert not out.exists()
 
