@@ -561,10 +561,11 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         raise SceneError(source, "materials",
                          f"expected a mapping of names to materials, got {describe(materials_doc)}")
     materials = {}
+    base = "" if source.startswith("<") else os.path.dirname(source)
     for key, spec in materials_doc.items():
         if not isinstance(key, str):
             raise SceneError(source, "materials", f"material names must be strings, got {describe(key)}")
-        materials[key] = _typed(source, spec, f"materials.{key}", _MATERIALS)
+        materials[key] = _typed(source, _texture_files(spec, base), f"materials.{key}", _MATERIALS)
 
     defined = {unicodedata.normalize("NFC", key) for key in materials}
     spheres_doc = top.get("spheres")
@@ -612,6 +613,25 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         warnings.warn(f"{source}: lights/ambient are ignored by the path integrator "
                       "(it is lit by emissive shapes and the background)", SceneWarning, stacklevel=3)
     return scene
+
+
+def _texture_files(spec, base: str):
+    """A material's mapping with every image texture's ``file`` (in its
+    colours, and nested in checkers) made relative to the scene file's
+    directory, as mesh files are; anything malformed is left for the
+    texture's own checks to report."""
+    if not base or not isinstance(spec, dict):
+        return spec
+
+    def resolve(value):
+        if not isinstance(value, dict):
+            return value
+        value = {k: resolve(v) if k in ("even", "odd") else v for k, v in value.items()}
+        if value.get("type") == "image" and isinstance(value.get("file"), str):
+            value["file"] = os.path.join(base, value["file"])
+        return value
+
+    return {k: resolve(v) if k in ("albedo", "color") else v for k, v in spec.items()}
 
 
 def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere]:
