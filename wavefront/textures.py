@@ -27,6 +27,7 @@ through it.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -243,16 +244,17 @@ def _read_exr(obj, file: str) -> np.ndarray:
             (x0, y0), (x1, y1) = exr.header()["dataWindow"]
         _too_big(obj, int(x1 - x0 + 1), int(y1 - y0 + 1))
         with OpenEXR.File(file, separate_channels=True) as exr:
-            channels = exr.channels()
+            # copied out: closing the file empties the channel dictionary
+            channels = {name: np.array(c.pixels) for name, c in exr.channels().items()}
     except SceneError:
         raise
     except Exception as e:
         fail(obj, "file", f"{file}: cannot read as OpenEXR ({_first_line(e)})")
     names = {name.split(".")[-1]: name for name in channels}
     if {"R", "G", "B"} <= names.keys():
-        data = np.stack([channels[names[c]].pixels for c in "RGB"], axis=-1)
+        data = np.stack([channels[names[c]] for c in "RGB"], axis=-1)
     elif "Y" in names:
-        data = channels[names["Y"]].pixels
+        data = channels[names["Y"]]
     else:
         fail(obj, "file", f"{file}: no R, G, B or Y channels (has {', '.join(sorted(channels))})")
     return image_pixels(obj, np.asarray(data, dtype=np.float32), path="file", size_checked=True)
@@ -276,7 +278,9 @@ def image_pixels(obj, data, path: str = "pixels", size_checked: bool = False) ->
         a = np.repeat(a[:, :, :1], 3, axis=2)
     a = a[:, :, :3]
     if a.dtype.kind in "ui":
-        import colour
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # colour warns that matplotlib is absent
+            import colour
 
         levels = np.iinfo(a.dtype).max
         if a.dtype.kind == "i" or levels > 65535:

@@ -1,0 +1,302 @@
+"""Textures: the checker's parity, image lookups and decoding, Perlin marble, and bad input."""
+
+import math
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from wavefront import Camera, Lambertian, Scene, Sphere, load_scene, render
+from wavefront.materials import Emissive, MaterialTable, Metal
+from wavefront.textures import (MAX_TEXTURE_PIXELS, Checker, ImageTexture, Noise, Perlin, TextureTable, lookup,
+                                texture_field)
+from wavefront.validation import SceneError
+
+from .test_furnace import SCENES
+
+EVEN, ODD = (0.2, 0.3, 0.1), (0.9, 0.9, 0.9)
+coordinate = st.floats(-1e3, 1e3, allow_nan=False)
+
+
+def evaluate(texture, points, uv=None):
+    table = TextureTable()
+    node = table.add(texture)
+    points = np.asarray(points, dtype=np.float64).reshape(3, -1)
+    return table.evaluate(np.full(points.shape[1], node), points, uv)
+
+
+def book_parity_even(p, scale):
+    """RTOW's checker_texture::value, point by point in plain Python."""
+    return sum(math.floor(x / scale) for x in p) % 2 == 0
+
+
+def truncating_parity_even(p, scale):
+    """A wrong checker (int() truncates towards zero): one cube too wide at every axis' zero."""
+    return sum(int(x / scale) for x in p) % 2 == 0
+
+
+# -- checker ---------------------------------------------------------------
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(coordinate, coordinate, coordinate), min_size=1, max_size=50),
+       st.floats(0.01, 10.0))
+def test_checker_parity_matches_the_book_on_any_points(points, scale):
+    colors = evaluate(Checker(scale, EVEN, ODD), np.array(points).T)
+    for p, c in zip(points, colors.T):
+        assert tuple(c) == (EVEN if book_parity_even(p, scale) else ODD), (p, scale)
+
+
+def test_checker_negative_control_truncation_is_caught():
+    """Near the planes through 0 the truncating checker differs; the table agrees with floor, not it."""
+    points = [(-0.1, 0.05, 0.05), (0.05, -0.7, 2.2), (-1.5, -0.5, 0.3)]
+    assert any(book_parity_even(p, 1.0) != truncating_parity_even(p, 1.0) for p in points)
+    colors = evaluate(Checker(1.0, EVEN, ODD), np.array(points).T)
+    for p, c in zip(points, colors.T):
+        assert tuple(c) == (EVEN if book_parity_even(p, 1.0) else ODD)
+        if book_parity_even(p, 1.0) != truncating_parity_even(p, 1.0):
+            assert tuple(c) != (EVEN if truncating_parity_even(p, 1.0) else ODD)
+
+
+def test_nested_checkers_resolve_level_by_level():
+    inner = Checker(0.5, (1.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    outer = Checker(2.0, inner, (0.0, 1.0, 0.0))
+    points = np.array([[0.1, 0.1, 0.1], [0.6, 0.1, 0.1], [2.5, 0.1, 0.1]]).T
+    colors = evaluate(outer, points)
+    np.testing.assert_array_equal(colors.T, [[1, 0, 0], [0, 0, 1], [0, 1, 0]])
+
+
+# -- images ----------------------------------------------------------------
+
+def write_png(path, pixels):
+    import imageio.v3 as iio
+
+    iio.imwrite(path, np.asarray(pixels, dtype=np.uint8))
+    return str(path)
+
+
+# 2 rows x 3 columns; row 0 is the top of the picture
+TINY = np.array([[[255, 0, 0], [0, 255, 0], [0, 0, 255]],
+                 [[10, 20, 30], [128, 128, 128], [255, 255, 255]]], dtype=np.uint8)
+
+
+def test_8bit_images_are_decoded_from_srgb_with_colour_science(tmp_path):
+    import colour
+
+    texture = ImageTexture(write_png(tmp_path / "tiny.png", TINY))
+    expected = colour.cctf_decoding(TINY / 255.0, function="sRGB")
+    np.testing.assert_allclose(texture.pixels, expected, rtol=1e-6, atol=1e-7)
+    assert texture.pixels[1, 1, 0] == pytest.approx(0.2158605, abs=1e-6)  # 128: not 128/255 = 0.502
+
+
+@pytest.mark.parametrize("u, v, row, column", [
+    (0.0, 0.0, 1, 0), (0.99, 0.0, 1, 2), (0.5, 0.25, 1, 1),  # v = 0 is the bottom row, as in RTOW
+    (0.0, 1.0, 0, 0), (0.5, 0.75, 0, 1), (0.34, 0.51, 0, 1), (1.0, 1.0, 0, 2),
+    (-3.0, 7.0, 0, 0),  # outside [0, 1]: clamped to the edge
+])
+def test_nearest_lookup_at_known_uv(tmp_path, u, v, row, column):
+    texture = ImageTexture(write_png(tmp_path / "tiny.png", TINY), filter="nearest")
+    np.testing.assert_array_equal(texture.lookup(np.array([[u], [v]]))[:, 0], texture.pixels[row, column])
+
+
+def test_bilinear_lookup_at_texel_centres_and_between(tmp_path):
+    texture = ImageTexture(write_png(tmp_path / "tiny.png", TINY))
+    assert texture.filter == "bilinear"
+    p = texture.pixels.astype(np.float64)
+    centre = lambda row, col: ((col + 0.5) / 3, 1 - (row + 0.5) / 2)  # noqa: E731
+    for row in range(2):
+        for col in range(3):
+            u, v = centre(row, col)
+            np.testing.assert_allclose(texture.lookup(np.array([[u], [v]]))[:, 0], p[row, col], atol=1e-6)
+    # half way between the centres of (0, 0) and (0, 1): the mean; and the middle of four texels
+    np.testing.assert_allclose(texture.lookup(np.array([[1 / 3], [0.75]]))[:, 0], (p[0, 0] + p[0, 1]) / 2, atol=1e-6)
+    np.testing.assert_allclose(texture.lookup(np.array([[1 / 3], [0.5]]))[:, 0],
+                               (p[0, 0] + p[0, 1] + p[1, 0] + p[1, 1]) / 4, atol=1e-6)
+    # a wrong filter (nearest) differs there: the test can tell them apart
+    assert not np.allclose(lookup(texture.pixels, np.array([[1 / 3], [0.5]]), "nearest")[:, 0],
+                           (p[0, 0] + p[0, 1] + p[1, 0] + p[1, 1]) / 4)
+
+
+def test_float_images_are_linear(tmp_path):
+    import OpenEXR
+
+    data = np.array([[[0.5, 2.0, 0.25]]], dtype=np.float32)
+    channels = {c: data[:, :, i].copy() for i, c in enumerate("RGB")}
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, channels) as f:
+        f.write(str(tmp_path / "lin.exr"))
+    np.testing.assert_array_equal(ImageTexture(str(tmp_path / "lin.exr")).pixels, data)
+    np.testing.assert_array_equal(ImageTexture(pixels=data).pixels, data)
+
+
+def test_sphere_uv_reaches_the_image_in_a_render(tmp_path):
+    """A sphere lit by a white sky (lambertian furnace): each pixel's value is the
+    albedo; with an image of a red top half and a blue bottom half the top of the
+    sphere comes out red and the bottom blue."""
+    pixels = np.zeros((2, 1, 3), dtype=np.uint8)
+    pixels[0, 0] = (255, 0, 0)
+    pixels[1, 0] = (0, 0, 255)
+    texture = ImageTexture(write_png(tmp_path / "halves.png", pixels), filter="nearest")
+    from wavefront.background import Solid
+
+    scene = Scene(spheres=[Sphere((0, 0, 0), 1, "m")], materials={"m": Lambertian(texture)},
+                  camera=Camera(look_from=(0, 0, 5), look_at=(0, 0, 0), vfov=30), width=16, height=16,
+                  background=Solid((1, 1, 1)))
+    image = render(scene.with_overrides(samples_per_pixel=4, max_depth=2), workers=1)
+    top, bottom = image[4, 8], image[11, 8]
+    assert top[0] > 0.9 and top[2] == 0 and bottom[2] > 0.9 and bottom[0] == 0
+
+
+# -- noise -----------------------------------------------------------------
+
+def test_perlin_noise_vanishes_on_the_lattice_and_is_smooth():
+    perlin = Perlin.build(0)
+    lattice = np.array([[0, 1, -3, 7], [0, 2, 5, -1], [0, 3, 1, 250]], dtype=np.float64)
+    np.testing.assert_allclose(perlin.noise(lattice), 0.0, atol=1e-12)  # gradient noise: zero at the corners
+    p = np.random.default_rng(1).uniform(-20, 20, (3, 1000))
+    step = perlin.noise(p + 1e-6) - perlin.noise(p)
+    assert np.abs(step).max() < 1e-4  # continuous (Hermite smoothing)
+    assert np.abs(perlin.noise(p)).max() <= 1.8
+
+
+def test_noise_depends_on_the_texture_seed_only():
+    points = np.random.default_rng(3).uniform(-5, 5, (3, 500))
+    a, b, c = (evaluate(Noise(4.0, seed), points) for seed in (0, 0, 1))
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c)
+    assert a.min() >= 0 and a.max() <= 1 and np.array_equal(a[0], a[1])  # grey, in [0, 1]
+
+
+def test_render_seed_does_not_change_the_marble():
+    scene = load_scene(SCENES / "perlin_spheres.yaml")
+    points = np.random.default_rng(5).uniform(-3, 3, (3, 200))
+    values = []
+    for seed in (0, 12345):
+        cs = scene.with_overrides(seed=seed).compile()
+        values.append(cs.materials.albedo_at(np.zeros(200, np.int32), points, None))
+    np.testing.assert_array_equal(values[0], values[1])
+
+
+# -- materials and emitters --------------------------------------------------
+
+def test_textured_materials_compile_with_their_mean():
+    table = MaterialTable.build([Lambertian(Checker(1.0, (0.2, 0.2, 0.2), (0.6, 0.6, 0.6))), Metal((0.5, 0.5, 0.5)),
+                                 Emissive(Noise(2.0))])
+    np.testing.assert_allclose(table.albedo[:, 0], 0.4)
+    assert table.albedo_texture.tolist() == [0, -1, -1] and table.emission_texture[2] >= 0
+    np.testing.assert_allclose(table.emission[:, 2], 0.5)
+
+
+def test_untextured_scene_has_no_texture_table():
+    assert MaterialTable.build([Lambertian(), Metal()]).textures is None
+
+
+def test_texture_field_accepts_lists_and_dicts():
+    assert texture_field(None, [1, 2, 3], "albedo") == (1.0, 2.0, 3.0)
+    t = texture_field(None, {"type": "checker", "scale": 2, "even": {"type": "noise"}, "odd": [0, 0, 0]}, "albedo")
+    assert isinstance(t, Checker) and isinstance(t.even, Noise) and t.scale == 2.0
+
+
+@pytest.mark.parametrize("spec, path, problem", [
+    ({"type": "checker", "scale": 0}, "albedo.scale", "must be > 0"),
+    ({"type": "checker", "scale": -1}, "albedo.scale", "must be > 0"),
+    ({"type": "noise", "scale": float("nan")}, "albedo.scale", "finite"),
+    ({"type": "checker", "even": [0, float("nan"), 0]}, "albedo.even[1]", "finite"),
+    ({"type": "marble"}, "albedo.type", "unknown value"),
+    ({"scale": 1}, "albedo.type", "required key is missing"),
+    ({"type": "noise", "colour": 1}, "albedo.colour", "unknown key"),
+    ({"type": "image"}, "albedo.file", "required key is missing"),
+    ({"type": "image", "file": "x.png", "filter": "cubic"}, "albedo.filter", "unknown value"),
+    ({"type": "checker", "odd": {"type": "noise", "seed": -1}}, "albedo.odd.seed", "must be >= 0"),
+])
+def test_bad_textures_name_the_path(spec, path, problem):
+    with pytest.raises(SceneError) as e:
+        Lambertian(spec)
+    assert e.value.path == path and problem in e.value.problem, str(e.value)
+
+
+def test_huge_pixels_array_is_refused():
+    with pytest.raises(SceneError, match="limit"):
+        ImageTexture(pixels=np.broadcast_to(np.zeros((1, 1, 3), np.float32), (4097, 4097, 3)))
+    assert 4097 * 4097 > MAX_TEXTURE_PIXELS
+
+
+# -- bad input through the command line ---------------------------------------
+
+def png_header_only(width, height):
+    """A PNG whose header claims ``width x height`` and that holds no pixels."""
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)) + \
+        chunk(b"IEND", b"")
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "wavefront", *map(str, args)], capture_output=True, text=True,
+                          timeout=300)
+
+
+SCENE = """
+image: {{width: 8, height: 8}}
+render: {{samples_per_pixel: 1}}
+materials:
+  m: {{type: lambertian, albedo: {albedo}}}
+spheres:
+  - {{center: [0, 0, -2], radius: 0.5, material: m}}
+"""
+
+
+@pytest.mark.parametrize("albedo, files, path, problem", [
+    ("{type: image, file: missing.png}", {}, "materials.m.albedo.file", "no such file"),
+    ("{type: image, file: notes.png}", {"notes.png": b"just some text\n"}, "materials.m.albedo.file",
+     "not an image"),
+    ("{type: image, file: huge.png}", {"huge.png": png_header_only(5000, 5000)}, "materials.m.albedo.file",
+     "the limit is"),
+    ("{type: checker, scale: 0}", {}, "materials.m.albedo.scale", "must be > 0"),
+    ("{type: checker, scale: -0.5, even: [1, 1, 1]}", {}, "materials.m.albedo.scale", "must be > 0"),
+    ("{type: noise, scale: .nan}", {}, "materials.m.albedo.scale", "finite"),
+    ("{type: checker, odd: {type: image, file: gone.png}}", {}, "materials.m.albedo.odd.file", "no such file"),
+    ("{type: wood}", {}, "materials.m.albedo.type", "unknown value"),
+    ("{type: noise, octaves: 3}", {}, "materials.m.albedo.octaves", "unknown key"),
+])
+def test_bad_texture_input_through_the_cli(tmp_path, albedo, files, path, problem):
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE.format(albedo=albedo))
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    out = tmp_path / "out.png"
+    r = run("render", scene, "-o", out, "-q")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert str(scene) in lines[0] and path in lines[0] and problem in lines[0], lines[0]
+    assert not out.exists()
+
+
+def test_image_path_is_relative_to_the_scene_file(tmp_path):
+    (tmp_path / "sub").mkdir()
+    write_png(tmp_path / "sub" / "tex.png", TINY)
+    scene = tmp_path / "sub" / "scene.yaml"
+    scene.write_text(SCENE.format(albedo="{type: image, file: tex.png, filter: nearest}"))
+    loaded = load_scene(scene)
+    assert loaded.materials["m"].albedo.pixels.shape == (2, 3, 3)
+
+
+def test_fingerprint_covers_image_pixels(tmp_path):
+    from wavefront.film import scene_fingerprint
+
+    def scene_with(pixels):
+        return Scene(spheres=[Sphere((0, 0, -2), 0.5, "m")],
+                     materials={"m": Lambertian(ImageTexture(pixels=pixels))}, width=8, height=8)
+
+    a = np.zeros((4, 4, 3), np.float32)
+    b = a.copy()
+    b[3, 3, 1] = 0.5
+    assert scene_fingerprint(scene_with(a)) == scene_fingerprint(scene_with(a.copy()))
+    assert scene_fingerprint(scene_with(a)) != scene_fingerprint(scene_with(b))
+    assert scene_fingerprint(scene_with(a)) != scene_fingerprint(
+        Scene(spheres=[Sphere((0, 0, -2), 0.5, "m")], materials={"m": Lambertian(Noise(1.0, seed=3))}, width=8,
+              height=8))
