@@ -300,3 +300,50 @@ def test_fingerprint_covers_image_pixels(tmp_path):
     assert scene_fingerprint(scene_with(a)) != scene_fingerprint(
         Scene(spheres=[Sphere((0, 0, -2), 0.5, "m")], materials={"m": Lambertian(Noise(1.0, seed=3))}, width=8,
               height=8))
+
+
+# -- textured emitters and Whitted ----------------------------------------------
+
+def lamp_scene(light_sampling, spp=256):
+    """A quad lamp facing down over a floor; its image is bright on the left
+    (x < 0) and dark on the right, so the floor below the left half is lit more."""
+    from wavefront import Quad
+    from wavefront.background import Solid
+    from wavefront.scene import RenderSettings
+
+    pixels = np.zeros((1, 2, 3), np.float32)
+    pixels[0, 0] = 8.0  # u < 1/2: the quad's first half along u
+    lamp = Emissive(ImageTexture(pixels=pixels, filter="nearest"))
+    # the lamp: u along +x, v along +z, so cross(u, v) = -y: it shines down
+    quads = [Quad((-1, 1, -0.5), (2, 0, 0), (0, 0, 1), "lamp"),
+             Quad((-3, 0, 3), (6, 0, 0), (0, 0, -6), "floor")]
+    return Scene(quads=quads, materials={"lamp": lamp, "floor": Lambertian((0.7, 0.7, 0.7))},
+                 background=Solid((0, 0, 0)),
+                 camera=Camera(look_from=(0, 4, 0), look_at=(0, 0, 0), vup=(0, 0, -1), vfov=60),
+                 width=24, height=24, render=RenderSettings(samples_per_pixel=spp, max_depth=2, seed=5,
+                                                            light_sampling=light_sampling, russian_roulette=False))
+
+
+def test_textured_light_is_sampled_with_its_texture():
+    on, off = (render(lamp_scene(nee), workers=1).astype(np.float64) for nee in (True, False))
+    # the camera looks straight down; image columns run along x
+    left_on, right_on = on[:, :8].mean(), on[:, 16:].mean()
+    left_off, right_off = off[:, :8].mean(), off[:, 16:].mean()
+    assert left_off > 1.5 * right_off  # the bright half lights the floor under it
+    assert abs(left_on - left_off) < 0.1 * left_off and abs(right_on - right_off) < 0.15 * right_off
+
+
+def test_whitted_reads_textured_diffuse_colour():
+    from wavefront import PointLight
+    from wavefront.background import Solid
+    from wavefront.scene import RenderSettings
+
+    floor = Lambertian(Checker(1.0, (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)))
+    scene = Scene(spheres=[Sphere((0, -1000, 0), 1000, "floor")], materials={"floor": floor},
+                  background=Solid((0, 0, 0)), camera=Camera(look_from=(0, 5, 0), look_at=(0, 0, 0), vup=(0, 0, -1), vfov=60),
+                  lights=(PointLight((0, 10, 0), (1, 1, 1)),), width=16, height=16,
+                  render=RenderSettings(samples_per_pixel=1, integrator="whitted"))
+    image = render(scene, workers=1).reshape(-1, 3)
+    red = (image[:, 0] > 0.1) & (image[:, 2] == 0)
+    blue = (image[:, 2] > 0.1) & (image[:, 0] == 0)
+    assert red.sum() > 30 and blue.sum() > 30 and (red | blue).all()
