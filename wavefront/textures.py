@@ -358,7 +358,9 @@ class Perlin:
         sum of eight weighted terms (the same value, rounded differently)."""
         floor = np.floor(p)
         frac = p - floor
-        cell = floor.astype(np.int64)
+        # the lattice cell modulo the table (the book's "& 255" on int(floor)),
+        # taken in floating point so that no coordinate overflows an integer
+        cell = np.mod(floor, PERLIN_POINTS).astype(np.int64)
         mask = PERLIN_POINTS - 1
         gx, gy, gz = self.random_vector
         perm_x, perm_y, perm_z = self.permutation
@@ -478,9 +480,10 @@ class TextureTable:
             if rows.size == 0:
                 break
             at = node.take(rows)
-            q = np.floor(p[:, rows] / scale.take(at))
-            total = q[0] + q[1] + q[2]
-            even = total - 2.0 * np.floor(0.5 * total) == 0.0
+            with np.errstate(over="ignore", invalid="ignore"):  # a tiny scale far out: inf, NaN -> odd
+                q = np.floor(p[:, rows] / scale.take(at))
+                total = q[0] + q[1] + q[2]
+                even = total - 2.0 * np.floor(0.5 * total) == 0.0
             node[rows] = np.where(even, children[0].take(at), children[1].take(at))
         k = kind.take(node)
         rows = np.flatnonzero(k == CONSTANT)
