@@ -66,6 +66,7 @@ class Intersector(Protocol):
     (:class:`~wavefront.shapes.Primitives`) and the BVH both answer it, alike."""
 
     material_idx: np.ndarray  # (M,) per primitive
+    moving: bool  # whether some primitive moves (rays then carry a time; motion blur)
 
     def intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
         """Nearest hit with ``T_MIN < t < t_max`` per ray; ``time (N,)`` in
