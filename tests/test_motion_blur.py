@@ -51,28 +51,28 @@ def test_float32_moving_scene_is_the_same_with_chunks_and_workers():
     np.testing.assert_array_equal(a, b)
 
 
-def random_spheres(rng, n, moving_fraction=0.5):
+def random_spheres(rng, n, moving_fraction=0.5, dtype=np.float64):
     center = rng.uniform(-5, 5, (3, n))
     radius = rng.uniform(0.05, 0.6, n)
     velocity = rng.uniform(-1, 1, (3, n)) * (rng.random(n) < moving_fraction)
-    return SphereSet(center, radius, np.zeros(n, np.int32), np.float64, velocity)
+    return SphereSet(center, radius, np.zeros(n, np.int32), dtype, velocity)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_bvh_and_brute_force_agree_bit_for_bit_on_moving_spheres(seed):
+@pytest.mark.parametrize("seed, dtype", [(0, np.float64), (1, np.float64), (2, np.float32), (3, np.float32)])
+def test_bvh_and_brute_force_agree_bit_for_bit_on_moving_spheres(seed, dtype):
     rng = np.random.default_rng(seed)
-    primitives = Primitives([random_spheres(rng, 300)])
+    primitives = Primitives([random_spheres(rng, 300, dtype=dtype)], dtype)
     bvh = BVH(primitives, 20.0)
     n = 4000
-    origin = rng.uniform(-8, 8, (3, n))
+    origin = rng.uniform(-8, 8, (3, n)).astype(dtype)
     direction = rng.normal(size=(3, n))
-    direction /= np.linalg.norm(direction, axis=0)
+    direction = (direction / np.linalg.norm(direction, axis=0)).astype(dtype)
     time = rng.random(n)
     brute, tree = primitives.intersect(origin, direction, time=time), bvh.intersect(origin, direction, time=time)
     np.testing.assert_array_equal(brute.primitive_idx, tree.primitive_idx)
     np.testing.assert_array_equal(brute.t, tree.t)
     assert (brute.primitive_idx >= 0).mean() > 0.1
-    t_max = rng.uniform(0.5, 10, n)
+    t_max = rng.uniform(0.5, 10, n).astype(dtype)
     np.testing.assert_array_equal(primitives.occluded(origin, direction, t_max, time),
                                   bvh.occluded(origin, direction, t_max, time))
     # the time matters: at time 0 other spheres are hit
