@@ -18,6 +18,7 @@ from wavefront.textures import (MAX_TEXTURE_PIXELS, Checker, ImageTexture, Noise
 from wavefront.validation import SceneError
 
 from .test_furnace import SCENES
+from .test_fuzz import BAD_VALUES, paths
 
 EVEN, ODD = (0.2, 0.3, 0.1), (0.9, 0.9, 0.9)
 coordinate = st.floats(-1e3, 1e3, allow_nan=False)
@@ -347,3 +348,50 @@ def test_whitted_reads_textured_diffuse_colour():
     red = (image[:, 0] > 0.1) & (image[:, 2] == 0)
     blue = (image[:, 2] > 0.1) & (image[:, 0] == 0)
     assert red.sum() > 30 and blue.sum() > 30 and (red | blue).all()
+
+
+# -- hostile documents ---------------------------------------------------------
+
+TEXTURED = {
+    "image": {"width": 8, "height": 6},
+    "render": {"samples_per_pixel": 1},
+    "materials": {
+        "floor": {"type": "lambertian", "albedo": {"type": "checker", "scale": 0.5, "even": [0.2, 0.3, 0.1],
+                                                   "odd": {"type": "noise", "scale": 4, "seed": 2}}},
+        "lamp": {"type": "emissive", "color": {"type": "noise", "scale": 1}},
+        "tint": {"type": "metal", "albedo": {"type": "checker", "even": [1, 1, 1], "odd": [0, 0, 0]}, "fuzz": 0.1},
+    },
+    "spheres": [{"center": [0, 0, -1], "center1": [0, 0.3, -1], "radius": 0.5, "material": "floor"},
+                {"center": [1, 0, -1], "radius": 0.3, "material": "lamp"},
+                {"center": [-1, 0, -1], "radius": 0.3, "material": "tint", "center1": [-1, 0, -1.2]}],
+}
+
+
+def test_textured_document_is_valid():
+    from wavefront.scenefile import scene_from_dict
+
+    render(scene_from_dict(TEXTURED, source="fuzz.yaml"), workers=1)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.data())
+def test_mutated_textured_documents_fail_at_their_path(data):
+    import copy
+
+    from wavefront.scenefile import scene_from_dict
+
+    doc = copy.deepcopy(TEXTURED)
+    candidates = [p for p, _, _ in paths(doc) if p.startswith(("materials", "spheres"))]
+    target = data.draw(st.sampled_from(candidates))
+    parent, key = next((parent, key) for p, parent, key in paths(doc) if p == target)
+    if data.draw(st.booleans()) and isinstance(parent, dict):
+        del parent[key]
+    else:
+        parent[key] = data.draw(BAD_VALUES)
+    try:
+        scene_from_dict(doc, source="fuzz.yaml")
+    except SceneError as e:
+        assert str(e).startswith("fuzz.yaml: "), str(e)
+        related = e.path.startswith(target) or target.startswith(e.path) or \
+            (target.startswith("materials") and e.path.startswith("spheres"))
+        assert related, (e.path, target, str(e))
