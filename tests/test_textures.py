@@ -395,3 +395,50 @@ def test_mutated_textured_documents_fail_at_their_path(data):
         related = e.path.startswith(target) or target.startswith(e.path) or \
             (target.startswith("materials") and e.path.startswith("spheres"))
         assert related, (e.path, target, str(e))
+
+
+def test_light_samples_carry_the_texture_a_ray_would_see(tmp_path):
+    """For textured emitters of every kind (a turned sphere, a quad, a triangle),
+    the radiance a light sample reports equals what a ray from the reference point
+    to the sampled point finds there: sampling and hitting agree on ``uv``."""
+    from wavefront import Quad, Triangle
+    from wavefront.scene import RenderSettings
+
+    write_png(tmp_path / "map.png", np.random.default_rng(0).integers(0, 256, (16, 32, 3)))
+    glow = Emissive(ImageTexture(str(tmp_path / "map.png")))
+    scene = Scene(spheres=[Sphere((0, 0, 0), 1, "glow", transform=[{"rotate": {"axis": [1, 1, 0], "angle": 70}},
+                                                                   {"translate": [0, 0, -4]}])],
+                  quads=[Quad((1.5, -1, -5), (1, 0, 1), (0, 2, 0), "glow")],
+                  triangles=[Triangle(((-3, -1, -5), (-1.5, -1, -4), (-2, 1, -4.5)), "glow")],
+                  materials={"glow": glow}, width=8, height=8, render=RenderSettings(samples_per_pixel=1))
+    cs = scene.compile()
+    emitters = cs.emitters
+    n = 3000
+    rng = np.random.default_rng(1)
+    reference = np.zeros((3, n))
+    sample = emitters.sample(reference, rng.random(n), rng.random((2, n)))
+    hits = cs.shapes.intersect(reference, sample.direction)
+    ok = np.flatnonzero((sample.radiance.max(axis=0) > 0) & np.isclose(hits.t, sample.distance, rtol=1e-9))
+    assert ok.size > n // 2
+    surface = cs.shapes.surface(reference[:, ok], sample.direction[:, ok], hits.t[ok], hits.primitive_idx[ok], uv=True)
+    seen = cs.materials.emission_at(surface.material_idx, surface.point, surface.uv)
+    np.testing.assert_allclose(seen, sample.radiance[:, ok], atol=2e-4)
+    kinds = set(cs.shapes.kind_of(hits.primitive_idx[ok]).tolist())
+    assert kinds == {0, 1, 2}  # every kind was checked
+
+
+def test_a_turned_sphere_turns_its_uv():
+    """RTOW's rotate_y intersects in object space, so an image turns with the sphere:
+    turned 90 degrees about y (which takes -x to +z), the point the camera sees
+    (+z) has the uv that -x has on a sphere that is not turned."""
+    from wavefront.shapes.sphere import sphere_uv
+
+    turned = Sphere((0, 0, 0), 1, "m", transform=[{"rotate": {"axis": [0, 1, 0], "angle": 90}}])
+    scene = Scene(spheres=[turned], materials={"m": Lambertian()}, width=4, height=4)
+    cs = scene.compile()
+    origin, direction = np.array([[0.0], [0.0], [5.0]]), np.array([[0.0], [0.0], [-1.0]])
+    hits = cs.shapes.intersect(origin, direction)
+    uv = cs.shapes.surface(origin, direction, hits.t, hits.primitive_idx, uv=True).uv
+    # R = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]] (right-hand rule), so R^T (0, 0, 1) = (-1, 0, 0)
+    np.testing.assert_allclose(uv, sphere_uv(np.array([[-1.0], [0.0], [0.0]])), atol=1e-12)
+    assert not np.allclose(uv, sphere_uv(np.array([[0.0], [0.0], [1.0]])))

@@ -41,7 +41,7 @@ import numpy as np
 from .materials import MaterialTable
 from .sampling import random_unit_vector
 from .shapes import Primitives, QuadSet, SphereSet, TriangleSet
-from .shapes.sphere import sphere_uv
+from .shapes.sphere import object_normal, sphere_uv
 from .textures import TextureTable
 from .vecmath import dot, gather
 
@@ -98,6 +98,7 @@ class EmitterTable:
     texture: np.ndarray | None = None  # (E,) int
     textures: TextureTable | None = None
     vertex_uv: np.ndarray | None = None  # (3, 2, E) a triangle's corner uv (barycentrics where the mesh has none)
+    rotation: np.ndarray | None = None  # (3, 3, E) a turned sphere's rotation (for its uv), identity elsewhere
 
     def __len__(self) -> int:
         return self.kind.shape[0]
@@ -120,11 +121,14 @@ class EmitterTable:
             f64 = lambda a: np.asarray(a, dtype=np.float64).take(sel, axis=-1)  # noqa: E731
             zeros = np.zeros((3, sel.size))
             velocity, corner_uv = zeros, np.broadcast_to(_BARYCENTRIC_UV, (3, 2, sel.size))
+            rotation = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, sel.size))
             if isinstance(shapes, SphereSet):
                 radius = f64(shapes.radius)
                 part = (SPHERE, f64(shapes.center), zeros, zeros, zeros, radius, 4.0 * np.pi * radius * radius)
                 if shapes.velocity is not None:
                     velocity = f64(shapes.velocity)
+                if shapes.rotation is not None:
+                    rotation = f64(shapes.rotation)
             elif isinstance(shapes, QuadSet):
                 u, v = f64(shapes.u), f64(shapes.v)
                 area = np.linalg.norm(np.cross(u, v, axis=0), axis=0)
@@ -139,7 +143,7 @@ class EmitterTable:
                 raise TypeError(f"no light sampler for {type(shapes).__name__}")
             material = shapes.material_idx.take(sel)
             parts.append(part + (materials.emission.astype(np.float64)[:, material], velocity,
-                                 materials.emission_texture.take(material), corner_uv))
+                                 materials.emission_texture.take(material), corner_uv, rotation))
             emitter_of[offset + sel] = sum(p[1].shape[1] for p in parts[:-1]) + np.arange(sel.size)
         if not parts:
             empty3 = np.zeros((3, 0))
@@ -164,7 +168,8 @@ class EmitterTable:
         return cls(kind, origin, edge1, edge2, normal, radius, area, radiance, pmf, cdf, emitter_of,
                    velocity=velocity if velocity.any() else None,
                    texture=texture if textured else None, textures=materials.textures if textured else None,
-                   vertex_uv=np.concatenate([p[10] for p in parts], axis=-1) if textured else None)
+                   vertex_uv=np.concatenate([p[10] for p in parts], axis=-1) if textured else None,
+                   rotation=np.concatenate([p[11] for p in parts], axis=-1) if textured else None)
 
     # -- sampling ------------------------------------------------------------
 
@@ -223,7 +228,7 @@ class EmitterTable:
         er, k, ur = e.take(rows), kind.take(rows), gather(u, rows)
         uv = np.empty((2, rows.size))
         spheres = np.flatnonzero(k == SPHERE)
-        uv[:, spheres] = sphere_uv(gather(normal, rows.take(spheres)))
+        uv[:, spheres] = sphere_uv(object_normal(self.rotation, er.take(spheres), gather(normal, rows.take(spheres))))
         quads = np.flatnonzero(k == QUAD)
         uv[:, quads] = gather(ur, quads)
         tris = np.flatnonzero(k == TRIANGLE)

@@ -8,7 +8,7 @@ from ..geometry import Sphere, nearest_root, sphere_roots
 from ..vecmath import gather
 from .base import ShapeKind
 
-__all__ = ["Sphere", "SphereSet", "world_sphere", "world_center1"]
+__all__ = ["Sphere", "SphereSet", "world_sphere", "world_center1", "world_rotation"]
 
 
 def world_sphere(sphere: Sphere) -> tuple[np.ndarray, float]:
@@ -33,6 +33,26 @@ def world_center1(sphere: Sphere) -> np.ndarray | None:
     return sphere.transform.points(center1[:, None])[:, 0]
 
 
+def world_rotation(sphere: Sphere) -> np.ndarray | None:
+    """The rotation ``(3, 3)`` of the sphere's transform (its linear part over
+    the scale), or None when it does not turn the sphere: it carries the
+    sphere's ``uv`` (and so an image on it) round with the sphere, as RTOW's
+    ``rotate_y`` does by intersecting in object space."""
+    if sphere.transform is None or sphere.transform.is_identity:
+        return None
+    rotation = sphere.transform.array[:3, :3] / sphere.transform.uniform_scale()
+    return None if np.array_equal(rotation, np.eye(3)) else rotation
+
+
+def object_normal(rotation: np.ndarray | None, idx, outward: np.ndarray) -> np.ndarray:
+    """World-space unit normals ``(3, N)`` of spheres ``idx`` turned back into
+    their object space (``R^T n``), where ``uv`` is defined."""
+    if rotation is None:
+        return outward
+    r = np.take(rotation, idx, axis=-1).astype(outward.dtype, copy=False)  # (3, 3, N)
+    return np.stack([r[0, i] * outward[0] + r[1, i] * outward[1] + r[2, i] * outward[2] for i in range(3)])
+
+
 class SphereSet(ShapeKind):
     """Spheres as arrays: ``center (3, M)``, ``radius (M,)``, at the render's precision.
 
@@ -55,6 +75,7 @@ class SphereSet(ShapeKind):
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
         self.radius_squared = (radius * radius).astype(dtype)
         self.inverse_radius = (1.0 / radius).astype(dtype)
+        self.rotation = None  # (3, 3, M) float64 where some sphere is turned (for uv); see world_rotation
         self.velocity = None
         if velocity is not None:
             # the end centre rounded to the render's precision, and the velocity
@@ -77,7 +98,14 @@ class SphereSet(ShapeKind):
                 velocity[:, i] = world_center1(spheres[i]) - center[:, i]
             if not velocity.any():  # every centre1 is its centre: nothing moves
                 velocity = None
-        return cls(center, radius, material_idx, dtype, velocity)
+        spheres_set = cls(center, radius, material_idx, dtype, velocity)
+        turned = [(i, r) for i, r in ((i, world_rotation(s)) for i, s in enumerate(spheres)
+                                      if s.transform is not None) if r is not None]
+        if turned:
+            spheres_set.rotation = np.repeat(np.eye(3)[:, :, None], m, axis=2)
+            for i, r in turned:
+                spheres_set.rotation[:, :, i] = r
+        return spheres_set
 
     @property
     def moving(self) -> bool:
@@ -129,7 +157,7 @@ class SphereSet(ShapeKind):
     def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = origin + t * direction
         outward = (point - self.center_at(idx, time)) * self.inverse_radius.take(idx)
-        return point, outward, outward, (sphere_uv(outward) if uv else None)
+        return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
 
 
 def sphere_uv(outward: np.ndarray) -> np.ndarray:
