@@ -21,7 +21,12 @@ When a scene is compiled, its textures become one :class:`TextureTable`;
 :meth:`TextureTable.evaluate` answers a whole batch of hits at once (one
 NumPy pass per checker nesting level, per image and per noise texture; never
 a loop over hits).  Materials, emitters and (later) media read their colours
-through it.
+through it.  A new colour parameter needs three steps: check it with
+:func:`texture_field` in its object's ``__post_init__`` (errors then name
+``albedo.odd.scale``), register it at compile time with ``node =
+table.add(value)`` (``table.mean(node)`` is its average colour), and call
+``table.evaluate(node_per_row, point, uv)`` on the rows that need it.  A
+volume has no ``uv``: pass ``None``, which only image textures refuse.
 """
 
 from __future__ import annotations
