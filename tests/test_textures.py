@@ -442,3 +442,16 @@ def test_a_turned_sphere_turns_its_uv():
     # R = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]] (right-hand rule), so R^T (0, 0, 1) = (-1, 0, 0)
     np.testing.assert_allclose(uv, sphere_uv(np.array([[-1.0], [0.0], [0.0]])), atol=1e-12)
     assert not np.allclose(uv, sphere_uv(np.array([[0.0], [0.0], [1.0]])))
+
+
+def test_image_beyond_the_memory_budget_is_refused_from_its_header(tmp_path):
+    write_png(tmp_path / "big.png", np.full((2048, 2048, 3), 100, np.uint8))  # 96 MiB to load, a small file
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE.format(albedo="{type: checker, odd: {type: image, file: big.png}}"))
+    out = tmp_path / "out.png"
+    r = run("render", scene, "-o", out, "--memory", "128M", "-q")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "materials.m.albedo.odd.file" in lines[0] and "memory budget" in lines[0], r.stderr
+    assert not out.exists()
+    assert run("render", scene, "-o", out, "--memory", "1G", "-q").returncode == 0 and out.exists()

@@ -45,6 +45,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
 )
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
 from .memory import refuse_unless_fits
+from .textures import image_load_bytes
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
 from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
@@ -565,7 +566,10 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
     for key, spec in materials_doc.items():
         if not isinstance(key, str):
             raise SceneError(source, "materials", f"material names must be strings, got {describe(key)}")
-        materials[key] = _typed(source, _texture_files(spec, base), f"materials.{key}", _MATERIALS)
+        spec = _texture_files(spec, base)
+        if memory is not None:
+            _refuse_images_beyond(memory, source, f"materials.{key}", spec)
+        materials[key] = _typed(source, spec, f"materials.{key}", _MATERIALS)
 
     defined = {unicodedata.normalize("NFC", key) for key in materials}
     spheres_doc = top.get("spheres")
@@ -632,6 +636,25 @@ def _texture_files(spec, base: str):
         return value
 
     return {k: resolve(v) if k in ("albedo", "color") else v for k, v in spec.items()}
+
+
+def _refuse_images_beyond(memory: int, source: str, path: str, spec) -> None:
+    """With a memory budget, an image texture too big to load within it is
+    refused from its header, before it is decoded (:class:`MemoryBudgetError`),
+    as a mesh file is."""
+    def walk(value, at):
+        if not isinstance(value, dict):
+            return
+        for side in ("even", "odd"):
+            walk(value.get(side), f"{at}.{side}")
+        if value.get("type") == "image" and isinstance(value.get("file"), str):
+            need = image_load_bytes(value["file"])
+            if need is not None:
+                refuse_unless_fits(memory, need, f"{source}: {at}.file: loading {value['file']}")
+
+    if isinstance(spec, dict):
+        for key in ("albedo", "color"):
+            walk(spec.get(key), f"{path}.{key}")
 
 
 def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere]:

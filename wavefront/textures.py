@@ -204,33 +204,71 @@ def _too_big(obj, width: int, height: int) -> None:
                           f"{MAX_TEXTURE_PIXELS} ({MAX_TEXTURE_PIXELS * 12 >> 20} MiB as linear float RGB)")
 
 
+# What loading an image holds at its peak, per pixel: the decoded 8-bit (or
+# 16-bit) pixels, the float32 RGB result and a grey image's widened copy.
+IMAGE_LOAD_BYTES_PER_PIXEL = 24
+
+
+def image_header(obj, file: str) -> tuple[str, int, int, int]:
+    """``(format, width, height, images)`` of ``file`` from its header alone
+    (``format`` is ``exr`` or ``imageio``); a SceneError at ``file`` if it is
+    missing, not a regular file, unreadable, not an image, or too big."""
+    if not os.path.isfile(file):
+        fail(obj, "file", f"{file}: no such file" if not os.path.exists(file) else f"{file}: not a regular file")
+    try:
+        with open(file, "rb") as f:
+            magic = f.read(4)
+    except OSError as e:
+        fail(obj, "file", f"{file}: cannot read ({e.strerror or e})")
+    if magic == b"\x76\x2f\x31\x01":  # OpenEXR's magic number
+        import OpenEXR
+
+        try:
+            with OpenEXR.File(file, header_only=True) as exr:
+                (x0, y0), (x1, y1) = exr.header()["dataWindow"]
+        except Exception as e:  # OpenEXR raises RuntimeError and others on a damaged header
+            fail(obj, "file", f"{file}: cannot read as OpenEXR ({_first_line(e)})")
+        width, height, images = int(x1 - x0 + 1), int(y1 - y0 + 1), 1
+        kind = "exr"
+    else:
+        import imageio.v3 as iio
+
+        try:
+            props = iio.improps(file)
+        except Exception as e:  # imageio's plugins raise many kinds; any of them means "not an image we read"
+            fail(obj, "file", f"{file}: not an image imageio can read ({_first_line(e)})")
+        shape, images = props.shape, props.n_images or 1
+        if images > 1 and len(shape) > 3:
+            shape = shape[1:]
+        if len(shape) < 2:
+            fail(obj, "file", f"{file}: not a 2D image (shape {shape})")
+        width, height, kind = int(shape[1]), int(shape[0]), "imageio"
+    _too_big(obj, width, height)
+    return kind, width, height, images
+
+
+def image_load_bytes(file: str) -> int | None:
+    """About how much memory loading ``file`` takes (None if its header does
+    not say: the texture's own checks then report the problem)."""
+    try:
+        _, width, height, _ = image_header(None, file)
+    except SceneError:
+        return None
+    return width * height * IMAGE_LOAD_BYTES_PER_PIXEL
+
+
 def read_image(obj, file: str) -> np.ndarray:
     """The image ``file`` as linear float32 RGB ``(height, width, 3)``.
 
     The size is read from the header first and refused above
     ``MAX_TEXTURE_PIXELS`` before any pixel is decoded."""
-    if not os.path.isfile(file):
-        fail(obj, "file", f"{file}: no such file" if not os.path.exists(file) else f"{file}: not a regular file")
-    if not os.access(file, os.R_OK):
-        fail(obj, "file", f"{file}: cannot read (permission denied)")
-    with open(file, "rb") as f:
-        magic = f.read(4)
-    if magic == b"\x76\x2f\x31\x01":  # OpenEXR's magic number
+    kind, _, _, images = image_header(obj, file)
+    if kind == "exr":
         return _read_exr(obj, file)
     import imageio.v3 as iio
 
     try:
-        props = iio.improps(file)
-    except Exception as e:  # imageio's plugins raise many kinds; any of them means "not an image we read"
-        fail(obj, "file", f"{file}: not an image imageio can read ({_first_line(e)})")
-    shape = props.shape
-    if props.n_images is not None and props.n_images > 1 and len(shape) > 3:
-        shape = shape[1:]
-    if len(shape) < 2:
-        fail(obj, "file", f"{file}: not a 2D image (shape {shape})")
-    _too_big(obj, int(shape[1]), int(shape[0]))
-    try:
-        data = iio.imread(file, index=0) if props.n_images and props.n_images > 1 else iio.imread(file)
+        data = iio.imread(file, index=0) if images > 1 else iio.imread(file)
     except Exception as e:
         fail(obj, "file", f"{file}: cannot decode ({_first_line(e)})")
     return image_pixels(obj, data, path="file", size_checked=True)
@@ -245,9 +283,6 @@ def _read_exr(obj, file: str) -> np.ndarray:
     import OpenEXR
 
     try:
-        with OpenEXR.File(file, header_only=True) as exr:
-            (x0, y0), (x1, y1) = exr.header()["dataWindow"]
-        _too_big(obj, int(x1 - x0 + 1), int(y1 - y0 + 1))
         with OpenEXR.File(file, separate_channels=True) as exr:
             # copied out: closing the file empties the channel dictionary
             channels = {name: np.array(c.pixels) for name, c in exr.channels().items()}
