@@ -116,7 +116,8 @@ class ImageTexture:
         if self.pixels is None:
             if self.file is None:
                 fail(self, "file", "required key is missing")
-            object.__setattr__(self, "file", os.fspath(string(self, self.file, "file")))
+            file = os.fspath(self.file) if isinstance(self.file, os.PathLike) else self.file
+            object.__setattr__(self, "file", string(self, file, "file"))
             object.__setattr__(self, "pixels", read_image(self, self.file))
         else:
             object.__setattr__(self, "pixels", image_pixels(self, self.pixels))
