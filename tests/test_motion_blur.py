@@ -221,3 +221,25 @@ def test_bouncing_spheres_scene_loads_with_moving_spheres():
     assert len(moving) > 100 and all(s.center1[1] >= s.center[1] for s in moving)
     cs = scene.with_overrides(width=8, height=6, samples_per_pixel=1).compile()
     assert cs.shapes.moving
+
+
+# -- the time sample ---------------------------------------------------------
+
+def joint_pvalue(a, b, bins=16):
+    """Chi-square p-value that ``a`` and ``b`` are independent and uniform on [0, 1)^2."""
+    from scipy import stats
+
+    counts, _, _ = np.histogram2d(a, b, bins=bins, range=[[0, 1], [0, 1]])
+    return stats.chisquare(counts.ravel()).pvalue
+
+
+def test_time_is_uniform_and_independent_of_the_camera_and_bounce_numbers():
+    from wavefront.sampling import TIME_PAIR, bounce_dimension, path_state, scene_key, uniform_pairs
+
+    state = path_state(scene_key(7), np.arange(200_000, dtype=np.uint64))
+    time = uniform_pairs(state, TIME_PAIR)[0]
+    assert time.min() >= 0 and time.max() < 1
+    for other in (uniform_pairs(state, 0)[0], uniform_pairs(state, 1)[1], uniform_pairs(state, bounce_dimension(0))[0]):
+        assert joint_pvalue(time, other) > 1e-4
+    # negative control: a "time" that reuses the pixel jitter's pair is perfectly dependent on it
+    assert joint_pvalue(uniform_pairs(state, 0)[1], uniform_pairs(state, 0)[1]) < 1e-12
