@@ -8,7 +8,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "wavefront"
 # Lowest first.  A module may import from its own layer or any layer below.
 LAYERS = [
     {"vecmath", "sampling", "validation", "transform", "memory"},
-    {"geometry", "camera", "materials", "background", "batch", "units", "output"},
+    {"textures", "geometry", "camera", "materials", "background", "batch", "units", "output"},
     {"film", "shapes"},  # shapes: the subpackage counts as one module
     {"bvh", "accel", "lights"},
     {"scene"},

@@ -15,10 +15,11 @@ from .render import MemoryBudgetError, RenderResult, render, render_scene
 from .scene import PointLight, RenderSettings, Scene
 from .scenefile import SceneError, SceneWarning, load_scene, scene_from_dict
 from .shapes import Box, Mesh, Quad, Triangle, box_quads
+from .textures import Checker, ImageTexture, Noise
 from .transform import Transform
 
 __all__ = [
-    "Box", "CheckpointError", "MemoryBudgetError", "OutputError",
+    "Box", "CheckpointError", "Checker", "ImageTexture", "MemoryBudgetError", "Noise", "OutputError",
     "Camera", "Dielectric", "Emissive", "Lambertian", "Mesh", "Metal", "Phong", "PointLight", "Quad",
     "RenderResult", "RenderSettings", "Scene", "SceneError", "SceneWarning", "Sky", "Solid",
     "Sphere", "Transform", "Triangle", "box_quads", "load_scene", "render", "render_scene", "scene_from_dict",

@@ -31,6 +31,8 @@ class PathBatch:
     bsdf_pdf: np.ndarray | None = None  # (N,) float64
     specular: np.ndarray | None = None  # (N,) bool
     eta_scale: np.ndarray | None = None  # (N,) float64
+    # The path's time in [0, 1) for motion blur (None in a scene where nothing moves).
+    time: np.ndarray | None = None  # (N,) float64
 
     def __len__(self) -> int:
         return self.slot.shape[0]
@@ -64,6 +66,7 @@ class ShadowBatch:
     t_max: np.ndarray  # (S,)
     contribution: np.ndarray  # (3, S), MIS-weighted, throughput included
     slot: np.ndarray  # (S,) int64
+    time: np.ndarray | None = None  # (S,) the path's time (motion blur), or None
 
     def __len__(self) -> int:
         return self.slot.shape[0]

@@ -182,8 +182,12 @@ class BVH:
     def __len__(self) -> int:
         return len(self.primitives)
 
-    def surface(self, origin, direction, t, idx, uv: bool = False):
-        return self.primitives.surface(origin, direction, t, idx, uv)
+    def surface(self, origin, direction, t, idx, uv: bool = False, time=None):
+        return self.primitives.surface(origin, direction, t, idx, uv, time)
+
+    @property
+    def moving(self) -> bool:
+        return self.primitives.moving
 
     # -- construction ------------------------------------------------------
 
@@ -259,32 +263,36 @@ class BVH:
 
     # -- traversal -----------------------------------------------------------
 
-    def intersect(self, origin, direction, t_max=np.inf) -> Hits:
-        """Nearest hit with ``T_MIN < t < t_max`` for every ray (see :meth:`Primitives.intersect`)."""
-        return self._batched(self._intersect, origin, direction, t_max)
+    def intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
+        """Nearest hit with ``T_MIN < t < t_max`` for every ray (see :meth:`Primitives.intersect`).
 
-    def occluded(self, origin, direction, t_max) -> np.ndarray:
+        A moving sphere's boxes hold it over the whole interval [0, 1]
+        (``SphereSet.bounds``); its exact test places it at each ray's ``time``."""
+        return self._batched(self._intersect, origin, direction, t_max, time)
+
+    def occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         """Any hit with ``T_MIN < t < t_max``: a ray leaves the traversal at its first hit."""
-        return self._batched(self._occluded, origin, direction, t_max)
+        return self._batched(self._occluded, origin, direction, t_max, time)
 
-    def _batched(self, query, origin, direction, t_max):
+    def _batched(self, query, origin, direction, t_max, time=None):
         n = origin.shape[1]
         if n <= TRAVERSAL_BATCH:
-            return query(origin, direction, t_max)
+            return query(origin, direction, t_max, time)
         t_max = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         parts = [query(origin[:, a:a + TRAVERSAL_BATCH], direction[:, a:a + TRAVERSAL_BATCH],
-                       t_max[a:a + TRAVERSAL_BATCH]) for a in range(0, n, TRAVERSAL_BATCH)]
+                       t_max[a:a + TRAVERSAL_BATCH], None if time is None else time[a:a + TRAVERSAL_BATCH])
+                 for a in range(0, n, TRAVERSAL_BATCH)]
         if isinstance(parts[0], Hits):
             return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.primitive_idx for h in parts]))
         return np.concatenate(parts)
 
-    def _intersect(self, origin, direction, t_max) -> Hits:
+    def _intersect(self, origin, direction, t_max, time=None) -> Hits:
         n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         # outsized primitives first: their hits bound the traversal
-        first = self.outsized_set.intersect(origin, direction, t_max)
+        first = self.outsized_set.intersect(origin, direction, t_max, time)
         best_t = np.minimum(first.t, limit)
-        found = self._traverse(origin, direction, limit, best_t)  # lowers best_t to the tree's hits
+        found = self._traverse(origin, direction, limit, best_t, time=time)  # lowers best_t to the tree's hits
         none = len(self.primitives)  # sentinel above every index, so np.minimum keeps real ones
         best_idx = np.full(n, none, dtype=np.int64)
         from_first = np.flatnonzero((first.primitive_idx >= 0) & (first.t == best_t))
@@ -298,20 +306,20 @@ class BVH:
         best_idx -= missed * (none + 1)  # the sentinel becomes -1
         return Hits(escaped_at_inf(best_t, ~missed, t_max), best_idx.astype(np.int32))
 
-    def _occluded(self, origin, direction, t_max) -> np.ndarray:
+    def _occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        blocked = self.outsized_set.occluded(origin, direction, limit) if len(self.outsized_set) else \
+        blocked = self.outsized_set.occluded(origin, direction, limit, time) if len(self.outsized_set) else \
             np.zeros(n, dtype=bool)
         rest = np.flatnonzero(~blocked)
         if rest.size:
             o, d, lim = origin.take(rest, axis=1), direction.take(rest, axis=1), limit.take(rest)
-            found = self._traverse(o, d, lim, lim.copy(), any_hit=True)
+            found = self._traverse(o, d, lim, lim.copy(), any_hit=True, time=None if time is None else time.take(rest))
             if found:
                 blocked[rest.take(np.concatenate([f[0] for f in found]))] = True
         return blocked
 
-    def _traverse(self, origin, direction, limit, best_t, any_hit: bool = False) -> list:
+    def _traverse(self, origin, direction, limit, best_t, any_hit: bool = False, time=None) -> list:
         """Walk the tree for the rays that enter its root box.
 
         Lowers ``best_t`` in place to each ray's nearest tree hit and returns
@@ -335,6 +343,7 @@ class BVH:
         # from here on per-ray arrays are indexed by position in ray_ids
         o, d = gather(origin, ray_ids), gather(direction, ray_ids)
         nearest, limit = best_t.take(ray_ids), limit.take(ray_ids)
+        time = None if time is None else time.take(ray_ids)
         # The traversal's ray starts where it enters the root box, so its t
         # is the true t minus `shift`; no box behind that point holds a hit,
         # which is why box entries are clamped at 0 below.
@@ -380,7 +389,8 @@ class BVH:
             else:  # slot j of node k at j * K + k
                 prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))
             ray = ray.take(pair)
-            t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1))
+            t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1),
+                                        None if time is None else time.take(ray))
             ok = np.flatnonzero(is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray)))
             ray, t, prim = ray.take(ok), t.take(ok), prim.take(ok)
             if any_hit:

@@ -68,7 +68,12 @@ class Sphere:
     ``transform`` ``None``, a :class:`~wavefront.transform.Transform` or a
                   scene file's list of steps: translate, rotate and
                   uniform scale only (anything else would not be a
-                  sphere); applied when the scene is compiled
+                  sphere); applied when the scene is compiled (to both
+                  centres of a moving sphere)
+    ``center1``   ``None`` (still), or the centre at time 1: the sphere
+                  moves linearly from ``center`` at time 0, and every
+                  camera sample sees it at its own time in [0, 1)
+                  (RTOW book 2's motion blur)
     ============  ======================================================
 
     Invalid values raise :class:`~wavefront.validation.SceneError` naming the field.
@@ -78,18 +83,25 @@ class Sphere:
     radius: float
     material: str | int
     transform: Transform | None = None
+    center1: tuple[float, float, float] | None = None
 
     def __post_init__(self):
         set_field = object.__setattr__
         set_field(self, "center", position(self, self.center, "center"))
+        if self.center1 is not None:
+            set_field(self, "center1", position(self, self.center1, "center1"))
         set_field(self, "radius", radius(self, self.radius, "radius"))
         set_field(self, "material", material_field(self, self.material))
         set_field(self, "transform", transform_field(self, self.transform, "transform", similarity_only=True))
         if self.transform is not None:  # where the ray tests will see it
             scale = self.transform.uniform_scale()
-            center = self.transform.points(np.asarray(self.center, dtype=np.float64)[:, None])[:, 0]
+            centers = [self.center] + ([self.center1] if self.center1 is not None else [])
+            center = self.transform.points(np.asarray(centers, dtype=np.float64).T)
             world_radius = self.radius * scale
-            if not (np.abs(center).max() <= MAX_COORDINATE and MIN_RADIUS <= world_radius <= MAX_COORDINATE):
+            with np.errstate(invalid="ignore"):
+                in_range = np.abs(center).max() <= MAX_COORDINATE
+            if not (in_range and MIN_RADIUS <= world_radius <= MAX_COORDINATE):
+                center = center[:, 0]
                 fail(self, "transform", f"in world space the sphere's centre {center.tolist()} or radius "
                                         f"{world_radius:g} "
                                         f"is out of range (coordinates within {MAX_COORDINATE:g}, radius at least "
@@ -207,6 +219,7 @@ def _many_unchecked(centers, radii, materials) -> list[Sphere] | None:
         set_field(s, "radius", r)
         set_field(s, "material", normal[m])
         set_field(s, "transform", None)
+        set_field(s, "center1", None)
         append(s)
     return spheres
 

@@ -22,6 +22,14 @@ check each with chi-square tests and wrong samplers that must fail.
 
 Emission is one-sided (RTOW book 3, pbrt, Mitsuba): a sample on the back of
 a quad or triangle, or on a sphere seen from inside, carries no radiance.
+
+A textured emitter is chosen by the power of its texture's mean colour
+(:meth:`wavefront.textures.TextureTable.mean`: an image's mean pixel, a
+checker's mean of its two colours, the marble's 0.5), and its radiance is
+the texture evaluated at the sampled point and its ``uv``.  Choosing by the
+mean rather than the exact integral over the surface only changes the noise,
+never the expectation: the pmf just has to be positive wherever light is
+emitted.  A moving sphere is sampled where it is at the shading path's time.
 """
 
 from __future__ import annotations
@@ -33,12 +41,16 @@ import numpy as np
 from .materials import MaterialTable
 from .sampling import random_unit_vector
 from .shapes import Primitives, QuadSet, SphereSet, TriangleSet
+from .shapes.sphere import object_normal, sphere_uv
+from .textures import TextureTable
 from .vecmath import dot, gather
 
 SPHERE, QUAD, TRIANGLE = 0, 1, 2  # emitter kinds
 # Below sin^2(1.5 degrees) the cone's 1 - cos(theta_max) cancels in floating
 # point; pbrt-v4 switches to the small-angle series there (sin^2 / 2).
 SMALL_CONE_SIN2 = 0.00068523
+# A triangle without file uv has the barycentrics (b1, b2) as its uv: corners (0, 0), (1, 0), (0, 1).
+_BARYCENTRIC_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[:, :, None]
 
 
 @dataclass(slots=True)
@@ -80,6 +92,13 @@ class EmitterTable:
     pmf: np.ndarray  # (E,) probability of choosing each emitter, by power
     cdf: np.ndarray  # (E,) its running sum, last entry exactly 1
     emitter_of: np.ndarray  # (M,) int32, per scene-wide primitive
+    # motion blur: a sphere's centre moves by ``velocity`` over [0, 1] (None: nothing moves)
+    velocity: np.ndarray | None = None  # (3, E)
+    # textured emission: the texture node per emitter (-1: ``radiance`` as is)
+    texture: np.ndarray | None = None  # (E,) int
+    textures: TextureTable | None = None
+    vertex_uv: np.ndarray | None = None  # (3, 2, E) a triangle's corner uv (barycentrics where the mesh has none)
+    rotation: np.ndarray | None = None  # (3, 3, E) a turned sphere's rotation (for its uv), identity elsewhere
 
     def __len__(self) -> int:
         return self.kind.shape[0]
@@ -101,9 +120,15 @@ class EmitterTable:
                 continue
             f64 = lambda a: np.asarray(a, dtype=np.float64).take(sel, axis=-1)  # noqa: E731
             zeros = np.zeros((3, sel.size))
+            velocity, corner_uv = zeros, np.broadcast_to(_BARYCENTRIC_UV, (3, 2, sel.size))
+            rotation = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, sel.size))
             if isinstance(shapes, SphereSet):
                 radius = f64(shapes.radius)
                 part = (SPHERE, f64(shapes.center), zeros, zeros, zeros, radius, 4.0 * np.pi * radius * radius)
+                if shapes.velocity is not None:
+                    velocity = f64(shapes.velocity)
+                if shapes.rotation is not None:
+                    rotation = f64(shapes.rotation)
             elif isinstance(shapes, QuadSet):
                 u, v = f64(shapes.u), f64(shapes.v)
                 area = np.linalg.norm(np.cross(u, v, axis=0), axis=0)
@@ -112,10 +137,13 @@ class EmitterTable:
                 e1, e2 = f64(shapes.e1), f64(shapes.e2)
                 area = 0.5 * np.linalg.norm(np.cross(e1, e2, axis=0), axis=0)
                 part = (TRIANGLE, f64(shapes.v0), e1, e2, f64(shapes.normal), np.zeros(sel.size), area)
+                if shapes.vertex_uv is not None:
+                    corner_uv = f64(shapes.vertex_uv)
             else:  # pragma: no cover - a new shape kind must say how it is sampled
                 raise TypeError(f"no light sampler for {type(shapes).__name__}")
             material = shapes.material_idx.take(sel)
-            parts.append(part + (materials.emission.astype(np.float64)[:, material],))
+            parts.append(part + (materials.emission.astype(np.float64)[:, material], velocity,
+                                 materials.emission_texture.take(material), corner_uv, rotation))
             emitter_of[offset + sel] = sum(p[1].shape[1] for p in parts[:-1]) + np.arange(sel.size)
         if not parts:
             empty3 = np.zeros((3, 0))
@@ -125,6 +153,9 @@ class EmitterTable:
         origin, edge1, edge2, normal = (np.concatenate([p[k] for p in parts], axis=1) for k in (1, 2, 3, 4))
         radius, area = (np.concatenate([p[k] for p in parts]) for k in (5, 6))
         radiance = np.concatenate([p[7] for p in parts], axis=1)
+        velocity = np.concatenate([p[8] for p in parts], axis=1)
+        texture = np.concatenate([p[9] for p in parts])
+        textured = materials.textures is not None and bool((texture >= 0).any())
         # Relative power, each factor scaled by its maximum first: emission and
         # area have no upper bound, and an overflow to inf made the pmf NaN
         # (the light vanished).  pi is common to all and left out.
@@ -134,7 +165,11 @@ class EmitterTable:
         pmf = power / power.sum()
         cdf = np.cumsum(pmf)
         cdf[-1] = 1.0  # so a uniform below 1 always finds an emitter
-        return cls(kind, origin, edge1, edge2, normal, radius, area, radiance, pmf, cdf, emitter_of)
+        return cls(kind, origin, edge1, edge2, normal, radius, area, radiance, pmf, cdf, emitter_of,
+                   velocity=velocity if velocity.any() else None,
+                   texture=texture if textured else None, textures=materials.textures if textured else None,
+                   vertex_uv=np.concatenate([p[10] for p in parts], axis=-1) if textured else None,
+                   rotation=np.concatenate([p[11] for p in parts], axis=-1) if textured else None)
 
     # -- sampling ------------------------------------------------------------
 
@@ -142,7 +177,7 @@ class EmitterTable:
         """Emitter indices for uniforms ``u (N,)``, each with probability ``pmf``."""
         return np.minimum(np.searchsorted(self.cdf, u, side="right"), len(self) - 1)
 
-    def sample(self, reference: np.ndarray, u_choice: np.ndarray, u: np.ndarray) -> LightSample:
+    def sample(self, reference: np.ndarray, u_choice: np.ndarray, u: np.ndarray, time=None) -> LightSample:
         """One light sample per reference point.
 
         Parameters
@@ -153,6 +188,8 @@ class EmitterTable:
             Uniform choosing the emitter.
         u : ndarray of shape (2, N)
             Uniforms choosing the point on it.
+        time : None or ndarray of shape (N,)
+            The paths' times (where moving spheres are).
         """
         ref = reference.astype(np.float64, copy=False)
         u = u.astype(np.float64, copy=False)
@@ -164,7 +201,8 @@ class EmitterTable:
                               (TRIANGLE, self._sample_triangles)):
             sel = np.flatnonzero(kind == code)
             if sel.size:
-                p, nrm, pd = sampler(e.take(sel), gather(ref, sel), gather(u, sel))
+                p, nrm, pd = sampler(e.take(sel), gather(ref, sel), gather(u, sel),
+                                     None if time is None else time.take(sel))
                 point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
         to_light = point - ref
         distance = np.sqrt(dot(to_light, to_light))
@@ -172,23 +210,56 @@ class EmitterTable:
         front = dot(normal, direction) < 0.0  # the light faces the reference point
         pdf *= self.pmf.take(e)
         lit = front & (pdf > 0) & np.isfinite(pdf)
-        radiance = gather(self.radiance, e) * lit
+        radiance = gather(self.radiance, e)
+        if self.texture is not None:
+            self._texture(radiance, e, kind, point, normal, u)
+        radiance *= lit
         return LightSample(point, direction, distance, pdf, radiance)
 
-    def _sample_spheres(self, e, ref, u):
-        return sample_sphere(self.origin[:, e], self.radius[e], ref, u)
+    def _texture(self, radiance, e, kind, point, normal, u) -> None:
+        """Textured emitters' radiance at their sampled points, written into ``radiance``.
 
-    def _sample_quads(self, e, ref, u):
+        The sampled point's ``uv`` is the shape's own: a sphere's from its
+        outward normal, a quad's ``(a, b)`` are the two uniforms, a
+        triangle's its corners' uv at the square-root map's barycentrics."""
+        rows = np.flatnonzero(self.texture.take(e) >= 0)
+        if rows.size == 0:
+            return
+        er, k, ur = e.take(rows), kind.take(rows), gather(u, rows)
+        uv = np.empty((2, rows.size))
+        spheres = np.flatnonzero(k == SPHERE)
+        uv[:, spheres] = sphere_uv(object_normal(self.rotation, er.take(spheres), gather(normal, rows.take(spheres))))
+        quads = np.flatnonzero(k == QUAD)
+        uv[:, quads] = gather(ur, quads)
+        tris = np.flatnonzero(k == TRIANGLE)
+        if tris.size:
+            s = np.sqrt(ur[0].take(tris))
+            b1 = ur[1].take(tris) * s
+            b2 = s - b1
+            corner = np.take(self.vertex_uv, er.take(tris), axis=-1)
+            uv[:, tris] = (1.0 - s) * corner[0] + b1 * corner[1] + b2 * corner[2]
+        radiance[:, rows] = self.textures.evaluate(self.texture.take(er), gather(point, rows), uv)
+
+    def _centers(self, e, time):
+        center = self.origin[:, e]
+        if self.velocity is None or time is None:
+            return center
+        return center + self.velocity[:, e] * time
+
+    def _sample_spheres(self, e, ref, u, time=None):
+        return sample_sphere(self._centers(e, time), self.radius[e], ref, u)
+
+    def _sample_quads(self, e, ref, u, time=None):
         point, pdf_area = sample_quad(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u, self.area[e])
         normal = self.normal[:, e]
         return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
 
-    def _sample_triangles(self, e, ref, u):
+    def _sample_triangles(self, e, ref, u, time=None):
         point, pdf_area = sample_triangle(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u, self.area[e])
         normal = self.normal[:, e]
         return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
 
-    def pdf(self, e: np.ndarray, reference: np.ndarray, point: np.ndarray) -> np.ndarray:
+    def pdf(self, e: np.ndarray, reference: np.ndarray, point: np.ndarray, time=None) -> np.ndarray:
         """Solid-angle pdf (emitter choice included) with which :meth:`sample`
         picks the direction from ``reference (3, N)`` to ``point (3, N)`` on
         emitter ``e (N,)``: what a path that found the emitter by scattering
@@ -200,8 +271,8 @@ class EmitterTable:
         spheres = np.flatnonzero(kind == SPHERE)
         if spheres.size:
             es = e.take(spheres)
-            pdf[spheres] = sphere_pdf(self.origin[:, es], self.radius[es], gather(ref, spheres),
-                                      gather(point, spheres))
+            pdf[spheres] = sphere_pdf(self._centers(es, None if time is None else time.take(spheres)),
+                                      self.radius[es], gather(ref, spheres), gather(point, spheres))
         flat = np.flatnonzero(kind != SPHERE)
         if flat.size:
             ef = e.take(flat)

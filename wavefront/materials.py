@@ -23,6 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from .sampling import random_unit_vector
+from .textures import Texture, TextureTable, is_texture, texture_field
 from .validation import color, number, warn
 from .vecmath import dot, gather, normalize, reflect, refract, scatter, schlick
 
@@ -42,14 +43,15 @@ class Lambertian:
     parameter     default    meaning
     ============  =========  =====================================
     ``albedo``    (.5,.5,.5) fraction of light reflected, per channel
+                             (an RGB triple or a texture)
     ============  =========  =====================================
     """
 
-    albedo: RGB = (0.5, 0.5, 0.5)
+    albedo: RGB | Texture = (0.5, 0.5, 0.5)
     kind: ClassVar[str] = "lambertian"
 
     def __post_init__(self):
-        object.__setattr__(self, "albedo", color(self, self.albedo, "albedo"))
+        object.__setattr__(self, "albedo", texture_field(self, self.albedo, "albedo"))
 
 
 @dataclass(frozen=True)
@@ -60,17 +62,18 @@ class Metal:
     parameter     default    meaning
     ============  =========  =====================================
     ``albedo``    (.8,.8,.8) tint of the reflection, per channel
+                             (an RGB triple or a texture)
     ``fuzz``      0          radius of the ball the reflected
                              direction is jittered in; clamped to 1
     ============  =========  =====================================
     """
 
-    albedo: RGB = (0.8, 0.8, 0.8)
+    albedo: RGB | Texture = (0.8, 0.8, 0.8)
     fuzz: float = 0.0
     kind: ClassVar[str] = "metal"
 
     def __post_init__(self):
-        object.__setattr__(self, "albedo", color(self, self.albedo, "albedo"))
+        object.__setattr__(self, "albedo", texture_field(self, self.albedo, "albedo"))
         fuzz = number(self, self.fuzz, "fuzz", low=0.0)
         # The lesson clamps fuzz to at most 1: beyond that the jitter ball
         # contains the origin and the lobe is no longer centred on the mirror
@@ -108,15 +111,16 @@ class Emissive:
     ===========  =======  ====================================
     parameter    default  meaning
     ===========  =======  ====================================
-    ``color``    (1,1,1)  emitted radiance (may exceed 1)
+    ``color``    (1,1,1)  emitted radiance (may exceed 1); an RGB
+                          triple or a texture
     ===========  =======  ====================================
     """
 
-    color: RGB = (1.0, 1.0, 1.0)
+    color: RGB | Texture = (1.0, 1.0, 1.0)
     kind: ClassVar[str] = "emissive"
 
     def __post_init__(self):
-        object.__setattr__(self, "color", color(self, self.color, "color"))
+        object.__setattr__(self, "color", texture_field(self, self.color, "color"))
 
 
 @dataclass(frozen=True)
@@ -172,6 +176,12 @@ class MaterialTable:
     shininess: np.ndarray  # (K,)
     reflectivity: np.ndarray  # (3, K)
     names: list[str] = field(default_factory=list)
+    # Textured colours: the node of ``textures`` per material (-1: the plain
+    # colour above).  Where textured, ``albedo`` / ``emission`` hold the
+    # texture's mean (what light sampling's power and Whitted's metal use).
+    albedo_texture: np.ndarray | None = None  # (K,) int32
+    emission_texture: np.ndarray | None = None  # (K,) int32
+    textures: TextureTable | None = None
 
     @classmethod
     def build(cls, materials: list[Material], names: list[str] | None = None, dtype=np.float64) -> MaterialTable:
@@ -188,16 +198,26 @@ class MaterialTable:
             reflectivity=np.zeros((3, k)),
             names=list(names or [f"material{i}" for i in range(k)]),
         )
+        textures = TextureTable()
+        t.albedo_texture, t.emission_texture = np.full(k, -1, np.int32), np.full(k, -1, np.int32)
+
+        def plain(value, i, ids):
+            """The colour's RGB (a texture's mean), its texture node noted in ``ids``."""
+            if not is_texture(value):
+                return value
+            ids[i] = textures.add(value)
+            return textures.mean(ids[i])
+
         for i, m in enumerate(materials):
             if isinstance(m, (Lambertian, Metal)):
-                t.albedo[:, i] = m.albedo
+                t.albedo[:, i] = plain(m.albedo, i, t.albedo_texture)
             if isinstance(m, Metal):
                 t.fuzz[i] = m.fuzz
-                t.reflectivity[:, i] = m.albedo  # Whitted: a metal is a tinted mirror
+                t.reflectivity[:, i] = t.albedo[:, i]  # Whitted: a metal is a tinted mirror
             elif isinstance(m, Dielectric):
                 t.refraction_index[i] = m.refraction_index
             elif isinstance(m, Emissive):
-                t.emission[:, i] = m.color
+                t.emission[:, i] = plain(m.color, i, t.emission_texture)
             elif isinstance(m, Phong):
                 t.albedo[:, i] = m.diffuse
                 t.ambient[:, i] = m.ambient
@@ -207,10 +227,37 @@ class MaterialTable:
         for name in ("albedo", "fuzz", "refraction_index", "emission", "ambient", "specular", "shininess",
                      "reflectivity"):
             setattr(t, name, getattr(t, name).astype(dtype))
+        t.textures = textures if len(textures) else None
         return t
 
     def code(self, kind: str) -> int:
         return KINDS.index(kind)
+
+    @property
+    def needs_uv(self) -> bool:
+        """Whether some texture reads the hits' ``uv`` (an image)."""
+        return self.textures is not None and self.textures.needs_uv
+
+    def albedo_at(self, material_idx, point, uv) -> np.ndarray:
+        """``albedo (3, N)`` of hits on materials ``material_idx (N,)`` at
+        ``point (3, N)`` with ``uv (2, N)``: the table's colour, textured rows
+        evaluated (exactly the gathered colour when nothing is textured)."""
+        return self._textured(self.albedo, self.albedo_texture, material_idx, point, uv)
+
+    def emission_at(self, material_idx, point, uv) -> np.ndarray:
+        """Emitted radiance ``(3, N)``, as :meth:`albedo_at`."""
+        return self._textured(self.emission, self.emission_texture, material_idx, point, uv)
+
+    def _textured(self, plain, texture, material_idx, point, uv):
+        value = gather(plain, material_idx)
+        if self.textures is None:
+            return value
+        node = texture.take(material_idx)
+        rows = np.flatnonzero(node >= 0)
+        if rows.size:
+            value[:, rows] = self.textures.evaluate(node.take(rows), gather(point, rows),
+                                                    None if uv is None else gather(uv, rows))
+        return value
 
 
 def scatter_lambertian(direction, normal, front_face, albedo, u):

@@ -43,8 +43,8 @@ import numpy as np
 from .batch import PathBatch, ShadowBatch
 from .units import Job
 from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
-from .sampling import (bounce_dimension, light_choice_dimension, light_point_dimension, path_state, uniform_pairs,
-                       uniform_pairs_at)
+from .sampling import (TIME_PAIR, bounce_dimension, light_choice_dimension, light_point_dimension, path_state,
+                       uniform_pairs, uniform_pairs_at)
 from .scene import CompiledScene
 from .vecmath import dot, gather, scatter, scatter_add
 
@@ -80,6 +80,9 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
     origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
+    # motion blur (RTOW book 2): the camera ray's time, from its own pair;
+    # only a scene with something moving draws it
+    time = uniform_pairs(state, TIME_PAIR)[0] if cs.shapes.moving else None
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -90,18 +93,22 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
         bsdf_pdf=np.zeros(n),
         specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
         eta_scale=np.ones(n),
+        time=time,
     )
 
 
-def _lambertian(table, m, d, n, front_face, u):
-    return scatter_lambertian(d, n, front_face, gather(table.albedo, m), u)
+# Scatter kernels: ``albedo`` is the rows' textured albedo (3, n), or None to
+# gather the material table's plain colour.
+def _lambertian(table, m, d, n, front_face, u, albedo=None):
+    return scatter_lambertian(d, n, front_face, gather(table.albedo, m) if albedo is None else albedo, u)
 
 
-def _metal(table, m, d, n, front_face, u):
-    return scatter_metal(d, n, front_face, gather(table.albedo, m), table.fuzz.take(m), u)
+def _metal(table, m, d, n, front_face, u, albedo=None):
+    return scatter_metal(d, n, front_face, gather(table.albedo, m) if albedo is None else albedo,
+                         table.fuzz.take(m), u)
 
 
-def _dielectric(table, m, d, n, front_face, u):
+def _dielectric(table, m, d, n, front_face, u, albedo=None):
     return scatter_dielectric(d, n, front_face, table.refraction_index.take(m), u)
 
 
@@ -150,16 +157,17 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
-        hits = cs.shapes.intersect(live.origin, live.direction)
+        hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
         live, surface = escaped(cs, live, hits, radiance)
         if len(live) == 0:
             continue
         absorbed = emitted(cs, live, surface, radiance, emitters)
         diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
+        albedo = surface_albedo(cs, surface)
         if emitters is not None:
-            shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth)
+            shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth, albedo)
             trace_shadow_rays(cs, shadows, radiance, stats)
-        direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed)
+        direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed, albedo)
         if diffuse is not None:
             record_sampling(cs, live, surface, diffuse, direction)
         if roulette is not None:
@@ -193,8 +201,19 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     live = live.take(hit_idx) if esc_idx.size else live
     if len(live) == 0:
         return live, None
-    surface = cs.shapes.surface(live.origin, live.direction, hits.t.take(hit_idx), hits.primitive_idx.take(hit_idx))
+    surface = cs.shapes.surface(live.origin, live.direction, hits.t.take(hit_idx), hits.primitive_idx.take(hit_idx),
+                                uv=cs.materials.needs_uv, time=live.time)
     return live, surface
+
+
+def surface_albedo(cs: CompiledScene, surface):
+    """The hits' textured albedo ``(3, N)`` (one texture evaluation per
+    bounce, shared by light sampling and scattering), or None when no albedo
+    is textured (the kernels then gather the table's colours, as always)."""
+    table = cs.materials
+    if table.textures is None or not (table.albedo_texture >= 0).any():
+        return None
+    return table.albedo_at(surface.material_idx, surface.point, surface.uv)
 
 
 def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None) -> np.ndarray:
@@ -215,7 +234,11 @@ def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None
         absorbed[sel] = True
         sel = sel[surface.front_face.take(sel)]
         m = surface.material_idx.take(sel)
-        value = gather(live.throughput, sel) * gather(table.emission, m)
+        if table.textures is None:
+            color = gather(table.emission, m)
+        else:
+            color = table.emission_at(m, gather(surface.point, sel), None if surface.uv is None else gather(surface.uv, sel))
+        value = gather(live.throughput, sel) * color
         if emitters is not None:
             value *= emission_weight(emitters, live, surface, sel)
         scatter_add(radiance, live.slot.take(sel), value)
@@ -243,7 +266,8 @@ def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
     if diffuse.size:
         rows = sel.take(diffuse)
         e = e.take(diffuse)
-        p_light = emitters.pdf(e, gather(live.origin, rows), gather(surface.point, rows))
+        p_light = emitters.pdf(e, gather(live.origin, rows), gather(surface.point, rows),
+                               None if live.time is None else live.time.take(rows))
         weight[diffuse] = mis_weight(live.bsdf_pdf.take(rows), p_light)
     return weight
 
@@ -257,7 +281,7 @@ def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
 
 
 def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, diffuse, absorbed,
-                  max_depth: int) -> ShadowBatch:
+                  max_depth: int, albedo=None) -> ShadowBatch:
     """Stage 5: one light sample per diffuse vertex, as a shadow ray.
 
     Only paths allowed another segment take one (the shadow ray is that
@@ -270,17 +294,19 @@ def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, diffuse
     u_point = uniform_pairs_at(state, light_point_dimension(depth))
     u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
     point = gather(surface.point, rows)
-    light = emitters.sample(point, u_choice, u_point)
+    time = None if live.time is None else live.time.take(rows)
+    light = emitters.sample(point, u_choice, u_point, time)
     normal = gather(surface.normal, rows)
     p_material = lambertian_pdf(normal, light.direction)
     ok = np.flatnonzero((p_material > 0.0) & (light.radiance.max(axis=0) > 0.0))
     rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
-    albedo = gather(cs.materials.albedo, surface.material_idx.take(rows))
+    albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
     f_cos = lambertian_eval(albedo, gather(normal, ok), gather(light.direction, ok))
     contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
-                       contribution=contribution, slot=live.slot.take(rows))
+                       contribution=contribution, slot=live.slot.take(rows),
+                       time=None if time is None else time.take(ok))
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
@@ -288,21 +314,21 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     if len(shadows) == 0:
         return
     stats.shadow_rays += len(shadows)
-    visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max))
+    visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max, shadows.time))
     scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
 
 
-def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed):
+def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed, albedo=None):
     """Stage 7: hits are routed by material kind, one kernel per kind present;
-    throughput is multiplied by the attenuation.  Returns the new directions
-    and the ``absorbed`` mask."""
+    throughput is multiplied by the attenuation (``albedo (3, N)``: the hits'
+    textured albedo, if any).  Returns the new directions and the ``absorbed`` mask."""
     table = cs.materials
     material, normal, front_face = surface.material_idx, surface.normal, surface.front_face
     kind = table.kind.take(material)
     u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
     if len(kernels) == 1 and not (table.kind == table.code("emissive")).any():
         # a lone kind and no emitters: no routing, no gathers
-        att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u)
+        att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
         live.throughput *= att
         return direction, dead
     direction = live.direction  # overwritten row by row below
@@ -311,7 +337,7 @@ def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed)
         if sel.size == 0:
             continue
         att, d, dead = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
-                              front_face.take(sel), gather(u, sel))
+                              front_face.take(sel), gather(u, sel), None if albedo is None else gather(albedo, sel))
         scatter(live.throughput, sel, gather(live.throughput, sel) * att)
         scatter(direction, sel, d)
         absorbed[sel] = dead

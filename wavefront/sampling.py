@@ -69,6 +69,10 @@ def path_state(key: np.uint64, sample_id: np.ndarray) -> np.ndarray:
 #   pair LIGHT_PAIRS + 2 depth      -> the point on the light (u0, u1)
 #   pair LIGHT_PAIRS + 2 depth + 1  -> which light (u0), roulette (u1)
 LIGHT_PAIRS = 1 << 24
+# Motion blur: each path's time in [0, 1) is the first uniform of a pair of
+# its own, outside every other block, so a scene that moves draws every
+# other number exactly as a still one does.
+TIME_PAIR = 1 << 23
 
 
 def bounce_dimension(depth: np.ndarray | int) -> np.ndarray | int:

@@ -388,14 +388,19 @@ def _face_normal(part: dict) -> np.ndarray:
 
 def shape_points(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """World-space points and radii that bound every shape: ``(P, 3)``, ``(P,)``
-    (sphere centres with their radii; quad corners and vertices with 0)."""
-    from .shapes.sphere import world_sphere
+    (sphere centres with their radii, spheres first; then moving spheres'
+    centres at time 1; quad corners and vertices with 0)."""
+    from .shapes.sphere import world_center1, world_sphere
 
     points, radii = [np.zeros((0, 3))], [np.zeros(0)]
     if scene.spheres:
         world = [world_sphere(s) for s in scene.spheres]
         points.append(np.array([c for c, _ in world]))
         radii.append(np.array([r for _, r in world]))
+        moving = [i for i, s in enumerate(scene.spheres) if s.center1 is not None]
+        if moving:
+            points.append(np.array([world_center1(scene.spheres[i]) for i in moving]))
+            radii.append(np.array([world[i][1] for i in moving]))
     for q in scene.quads:  # per scene object
         c, u, v = q.world()
         points.append(np.array([c, c + u, c + v, c + u + v]))

@@ -45,6 +45,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
 )
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
 from .memory import refuse_unless_fits
+from .textures import image_load_bytes
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
 from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
@@ -561,9 +562,13 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         raise SceneError(source, "materials",
                          f"expected a mapping of names to materials, got {describe(materials_doc)}")
     materials = {}
+    base = "" if source.startswith("<") else os.path.dirname(source)
     for key, spec in materials_doc.items():
         if not isinstance(key, str):
             raise SceneError(source, "materials", f"material names must be strings, got {describe(key)}")
+        spec = _texture_files(spec, base)
+        if memory is not None:
+            _refuse_images_beyond(memory, source, f"materials.{key}", spec)
         materials[key] = _typed(source, spec, f"materials.{key}", _MATERIALS)
 
     defined = {unicodedata.normalize("NFC", key) for key in materials}
@@ -612,6 +617,44 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         warnings.warn(f"{source}: lights/ambient are ignored by the path integrator "
                       "(it is lit by emissive shapes and the background)", SceneWarning, stacklevel=3)
     return scene
+
+
+def _texture_files(spec, base: str):
+    """A material's mapping with every image texture's ``file`` (in its
+    colours, and nested in checkers) made relative to the scene file's
+    directory, as mesh files are; anything malformed is left for the
+    texture's own checks to report."""
+    if not base or not isinstance(spec, dict):
+        return spec
+
+    def resolve(value):
+        if not isinstance(value, dict):
+            return value
+        value = {k: resolve(v) if k in ("even", "odd") else v for k, v in value.items()}
+        if value.get("type") == "image" and isinstance(value.get("file"), str):
+            value["file"] = os.path.join(base, value["file"])
+        return value
+
+    return {k: resolve(v) if k in ("albedo", "color") else v for k, v in spec.items()}
+
+
+def _refuse_images_beyond(memory: int, source: str, path: str, spec) -> None:
+    """With a memory budget, an image texture too big to load within it is
+    refused from its header, before it is decoded (:class:`MemoryBudgetError`),
+    as a mesh file is."""
+    def walk(value, at):
+        if not isinstance(value, dict):
+            return
+        for side in ("even", "odd"):
+            walk(value.get(side), f"{at}.{side}")
+        if value.get("type") == "image" and isinstance(value.get("file"), str):
+            need = image_load_bytes(value["file"])
+            if need is not None:
+                refuse_unless_fits(memory, need, f"{source}: {at}.file: loading {value['file']}")
+
+    if isinstance(spec, dict):
+        for key in ("albedo", "color"):
+            walk(spec.get(key), f"{path}.{key}")
 
 
 def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere]:

@@ -45,16 +45,18 @@ MIN_WEIGHT = 1e-6
 CHUNK_FRACTION = 4
 
 
-def phong_local(cs: CompiledScene, point, normal, view, material) -> np.ndarray:
-    """Ambient plus, for each light a shadow ray does not block, diffuse and specular."""
+def phong_local(cs: CompiledScene, point, normal, view, material, diffuse=None, time=None) -> np.ndarray:
+    """Ambient plus, for each light a shadow ray does not block, diffuse and
+    specular; ``diffuse (3, N)`` is the hits' textured diffuse colour, if any."""
     t = cs.materials
     color = t.ambient[:, material] * np.asarray(cs.scene.ambient, dtype=cs.dtype)[:, None]
-    diffuse, specular, shininess = t.albedo[:, material], t.specular[:, material], t.shininess[material]
+    specular, shininess = t.specular[:, material], t.shininess[material]
+    diffuse = t.albedo[:, material] if diffuse is None else diffuse
     for k in range(cs.light_position.shape[1]):
         to_light = cs.light_position[:, k:k + 1] - point
         distance = np.sqrt(dot(to_light, to_light))
         l = to_light / distance
-        lit = ~cs.shapes.occluded(point, l, distance)  # any-hit: shadow rays stop at their first hit
+        lit = ~cs.shapes.occluded(point, l, distance, time)  # any-hit: shadow rays stop at their first hit
         n_dot_l = dot(normal, l)
         r = 2.0 * n_dot_l * normal - l
         highlight = np.maximum(0.0, dot(r, view)) ** shininess
@@ -88,7 +90,7 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
             if should_stop is not None and should_stop():
                 return radiance
             stats.segments += len(live)
-            hits = cs.shapes.intersect(live.origin, live.direction)
+            hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
             hit = hits.primitive_idx >= 0
             esc = np.flatnonzero(~hit)
             if esc.size:
@@ -96,8 +98,9 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
             hit_idx = np.flatnonzero(hit)
             if hit_idx.size == 0:
                 break
+            time = None if live.time is None else live.time[hit_idx]
             surface = cs.shapes.surface(live.origin[:, hit_idx], live.direction[:, hit_idx], hits.t[hit_idx],
-                                        hits.primitive_idx[hit_idx])
+                                        hits.primitive_idx[hit_idx], uv=t.needs_uv, time=time)
             point, normal, front_face, material = surface.point, surface.normal, surface.front_face, surface.material_idx
             kind = t.kind[material]
             d = live.direction[:, hit_idx]
@@ -106,16 +109,29 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
 
             glows = kind == emissive  # emission is one-sided: only the front face glows, but any face ends the ray
             shines = glows & front_face
-            add(slot[shines], weight[:, shines] * t.emission[:, material[shines]])
+            uv = surface.uv
+            if t.textures is None:
+                add(slot[shines], weight[:, shines] * t.emission[:, material[shines]])
+            else:
+                add(slot[shines], weight[:, shines] * t.emission_at(material[shines], point[:, shines],
+                                                                     None if uv is None else uv[:, shines]))
             glass = kind == dielectric
             shaded = ~(glows | glass)
+            diffuse = None if t.textures is None else t.albedo_at(material[shaded], point[:, shaded],
+                                                                  None if uv is None else uv[:, shaded])
             add(slot[shaded], weight[:, shaded] * phong_local(
-                cs, point[:, shaded], normal[:, shaded], -d[:, shaded], material[shaded]))
+                cs, point[:, shaded], normal[:, shaded], -d[:, shaded], material[shaded], diffuse,
+                None if time is None else time[shaded]))
             if live.depth[0] >= max_depth:  # a generation shares one depth
                 break
 
             # secondary rays: mirror reflection weighted by k_r ...
-            mirror_weight = np.where(shaded, weight * t.reflectivity[:, material], 0.0)
+            reflectivity = t.reflectivity[:, material]
+            if t.textures is not None:  # a textured metal is a mirror tinted by its texture
+                tinted = np.flatnonzero((kind == t.code("metal")) & (t.albedo_texture[material] >= 0))
+                reflectivity[:, tinted] = t.albedo_at(material[tinted], point[:, tinted],
+                                                      None if uv is None else uv[:, tinted])
+            mirror_weight = np.where(shaded, weight * reflectivity, 0.0)
             # ... and for glass, reflection and refraction weighted by Schlick
             ratio = np.where(front_face, 1.0 / t.refraction_index[material], t.refraction_index[material])
             cos_theta = np.minimum(-dot(d, normal), 1.0)
@@ -136,5 +152,6 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
                 slot=np.concatenate((slot[keep_r], slot[keep_t])),
                 state=np.concatenate((live.state[hit_idx][keep_r], live.state[hit_idx][keep_t])),
                 depth=np.concatenate((depth[keep_r], depth[keep_t])),
+                time=None if time is None else np.concatenate((time[keep_r], time[keep_t])),
             )
     return radiance

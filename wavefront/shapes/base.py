@@ -66,14 +66,16 @@ class Intersector(Protocol):
     (:class:`~wavefront.shapes.Primitives`) and the BVH both answer it, alike."""
 
     material_idx: np.ndarray  # (M,) per primitive
+    moving: bool  # whether some primitive moves (rays then carry a time; motion blur)
 
-    def intersect(self, origin, direction, t_max=np.inf) -> Hits:
-        """Nearest hit with ``T_MIN < t < t_max`` per ray."""
+    def intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
+        """Nearest hit with ``T_MIN < t < t_max`` per ray; ``time (N,)`` in
+        [0, 1) places moving spheres (``None``: every sphere at its ``center``)."""
 
-    def occluded(self, origin, direction, t_max) -> np.ndarray:
+    def occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         """Whether any hit has ``T_MIN < t < t_max`` (shadow rays)."""
 
-    def surface(self, origin, direction, t, idx, uv: bool = False) -> SurfaceHits:
+    def surface(self, origin, direction, t, idx, uv: bool = False, time=None) -> SurfaceHits:
         """What the hitting rays hit."""
 
 
@@ -98,11 +100,12 @@ class ShapeKind:
         """Fields of primitives ``idx``, one column per (ray, primitive) pair."""
         return [np.take(getattr(self, f), idx, axis=-1) for f in self.FIELDS]
 
-    def t_block(self, start: int, stop: int, origin, direction) -> np.ndarray:
-        """``(stop - start, N)`` hit distances of every ray against a block of primitives."""
+    def t_block(self, start: int, stop: int, origin, direction, time=None) -> np.ndarray:
+        """``(stop - start, N)`` hit distances of every ray against a block of
+        primitives (``time``: the rays' times, for kinds that move)."""
         return self.exact_t(*self.block(start, stop), origin[:, None, :], direction[:, None, :])
 
-    def t_pairs(self, idx: np.ndarray, origin, direction) -> np.ndarray:
+    def t_pairs(self, idx: np.ndarray, origin, direction, time=None) -> np.ndarray:
         """``(P,)`` hit distances of pairs: ray ``p`` (a column of ``origin``) against primitive ``idx[p]``."""
         return self.exact_t(*self.gather(idx), origin, direction)
 

@@ -37,6 +37,11 @@ class Primitives:
     def __len__(self) -> int:
         return int(self.offsets[-1])
 
+    @property
+    def moving(self) -> bool:
+        """Whether some primitive moves (rays then carry a time)."""
+        return any(getattr(k, "moving", False) for k in self.kinds)
+
     def kind_of(self, idx: np.ndarray) -> np.ndarray:
         """Which of ``self.kinds`` each scene-wide index belongs to."""
         return np.searchsorted(self.offsets, idx, side="right") - 1
@@ -72,7 +77,7 @@ class Primitives:
             for start in range(0, m, block):
                 yield kind, int(offset), start, min(m, start + block)
 
-    def intersect(self, origin, direction, t_max=np.inf) -> Hits:
+    def intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
         """Nearest hit with ``T_MIN < t < t_max`` for every ray, by brute force.
 
         The nearest primitive of a block is found with a ``min`` reduction and
@@ -84,12 +89,14 @@ class Primitives:
         origin, direction : ndarray of shape (3, N)
             ``direction`` must be unit length.
         t_max : float or ndarray of shape (N,)
+        time : None or ndarray of shape (N,)
+            Each ray's time in [0, 1), for moving spheres.
         """
         n = origin.shape[1]
         best_t = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,)).copy()
         best_idx = np.full(n, -1, dtype=np.int64)
         for kind, offset, start, stop in self._blocks(n):
-            t = kind.t_block(start, stop, origin, direction)
+            t = kind.t_block(start, stop, origin, direction, time)
             t_block = np.fmin.reduce(t, axis=0)  # fmin: a miss may be NaN
             # strict: an earlier block keeps a tie; false where nothing was hit
             closer = t_block < best_t
@@ -99,46 +106,47 @@ class Primitives:
             best_t = np.fmin(best_t, t_block)
         return Hits(escaped_at_inf(best_t, best_idx >= 0, t_max), best_idx.astype(np.int32))
 
-    def occluded(self, origin, direction, t_max) -> np.ndarray:
+    def occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         """Any hit with ``T_MIN < t < t_max`` (a shadow ray's question); rays
         stop being tested at their first hit.  Shape ``(N,)`` bool."""
         n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         blocked = np.zeros(n, dtype=bool)
         live = np.arange(n)
-        o, d, lim = origin, direction, limit
+        o, d, lim, tm = origin, direction, limit, time
         for kind, _, start, stop in self._blocks(n):
             if live.size == 0:
                 break
-            hit = (kind.t_block(start, stop, o, d) < lim).any(axis=0)  # NaN compares false
+            hit = (kind.t_block(start, stop, o, d, tm) < lim).any(axis=0)  # NaN compares false
             if hit.any():
                 blocked[live[hit]] = True
                 keep = np.flatnonzero(~hit)
                 live, o, d, lim = live.take(keep), o.take(keep, axis=1), d.take(keep, axis=1), lim.take(keep)
+                tm = None if tm is None else tm.take(keep)
         return blocked
 
-    def t_pairs(self, idx: np.ndarray, origin, direction) -> np.ndarray:
-        """Exact ``t`` of ray ``p`` (column ``p`` of ``origin``) against primitive
-        ``idx[p]``: the arithmetic of :meth:`intersect`, pair by pair."""
+    def t_pairs(self, idx: np.ndarray, origin, direction, time=None) -> np.ndarray:
+        """Exact ``t`` of ray ``p`` (column ``p`` of ``origin``, at ``time[p]``)
+        against primitive ``idx[p]``: the arithmetic of :meth:`intersect`, pair by pair."""
         if len(self.kinds) == 1:
-            return self.kinds[0].t_pairs(idx, origin, direction)
+            return self.kinds[0].t_pairs(idx, origin, direction, time)
         t = np.empty(idx.shape, dtype=np.result_type(origin.dtype, self.dtype))
         kind = self.kind_of(idx)
         for k, shapes in enumerate(self.kinds):
             sel = np.flatnonzero(kind == k)
             if sel.size:
                 t[sel] = shapes.t_pairs(idx.take(sel) - self.offsets[k], origin.take(sel, axis=1),
-                                        direction.take(sel, axis=1))
+                                        direction.take(sel, axis=1), None if time is None else time.take(sel))
         return t
 
-    def surface(self, origin, direction, t, idx, uv: bool = False) -> SurfaceHits:
-        """What rays that hit primitives ``idx`` at ``t`` hit (hitting rows only).
+    def surface(self, origin, direction, t, idx, uv: bool = False, time=None) -> SurfaceHits:
+        """What rays that hit primitives ``idx`` at ``t`` (at ``time``) hit (hitting rows only).
 
-        ``uv`` computes surface coordinates too (nothing reads them yet, and
-        for spheres they cost two transcendental functions per hit).
+        ``uv`` computes surface coordinates too (only image textures read
+        them, and for spheres they cost two transcendental functions per hit).
         """
         if len(self.kinds) == 1:
-            point, outward, shading, coords = self.kinds[0].surface(idx, origin, direction, t, uv)
+            point, outward, shading, coords = self.kinds[0].surface(idx, origin, direction, t, uv, time)
         else:
             n = idx.shape[0]
             point = np.empty((3, n), dtype=origin.dtype)
@@ -151,7 +159,8 @@ class Primitives:
                 if sel.size == 0:
                     continue
                 p, g, s, c = shapes.surface(idx.take(sel) - self.offsets[k], origin.take(sel, axis=1),
-                                            direction.take(sel, axis=1), t.take(sel), uv)
+                                            direction.take(sel, axis=1), t.take(sel), uv,
+                                            None if time is None else time.take(sel))
                 point[:, sel], outward[:, sel], shading[:, sel] = p, g, s
                 if uv:
                     coords[:, sel] = c

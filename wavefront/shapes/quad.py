@@ -190,7 +190,7 @@ class QuadSet(ShapeKind):
             ok = (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & in_box(p, box_lo, box_hi)
         return np.where(ok, t, np.inf)
 
-    def surface(self, idx, origin, direction, t, uv: bool):
+    def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = origin + t * direction
         outward = gather(self.normal, idx)
         coords = None

@@ -8,12 +8,12 @@ from ..geometry import Sphere, nearest_root, sphere_roots
 from ..vecmath import gather
 from .base import ShapeKind
 
-__all__ = ["Sphere", "SphereSet", "world_sphere"]
+__all__ = ["Sphere", "SphereSet", "world_sphere", "world_center1", "world_rotation"]
 
 
 def world_sphere(sphere: Sphere) -> tuple[np.ndarray, float]:
-    """Centre and radius in world space (``transform`` must be a similarity,
-    which the scene loader and :func:`SphereSet.build` check)."""
+    """Centre (at time 0) and radius in world space (``transform`` must be a
+    similarity, which the scene loader and :func:`SphereSet.build` check)."""
     center = np.asarray(sphere.center, dtype=np.float64)
     if sphere.transform is None or sphere.transform.is_identity:
         return center, float(sphere.radius)
@@ -23,13 +23,49 @@ def world_sphere(sphere: Sphere) -> tuple[np.ndarray, float]:
     return sphere.transform.points(center[:, None])[:, 0], float(sphere.radius) * scale
 
 
+def world_center1(sphere: Sphere) -> np.ndarray | None:
+    """The centre at time 1 in world space (the transform moves both centres alike); None for a still sphere."""
+    if sphere.center1 is None:
+        return None
+    center1 = np.asarray(sphere.center1, dtype=np.float64)
+    if sphere.transform is None or sphere.transform.is_identity:
+        return center1
+    return sphere.transform.points(center1[:, None])[:, 0]
+
+
+def world_rotation(sphere: Sphere) -> np.ndarray | None:
+    """The rotation ``(3, 3)`` of the sphere's transform (its linear part over
+    the scale), or None when it does not turn the sphere: it carries the
+    sphere's ``uv`` (and so an image on it) round with the sphere, as RTOW's
+    ``rotate_y`` does by intersecting in object space."""
+    if sphere.transform is None or sphere.transform.is_identity:
+        return None
+    rotation = sphere.transform.array[:3, :3] / sphere.transform.uniform_scale()
+    return None if np.array_equal(rotation, np.eye(3)) else rotation
+
+
+def object_normal(rotation: np.ndarray | None, idx, outward: np.ndarray) -> np.ndarray:
+    """World-space unit normals ``(3, N)`` of spheres ``idx`` turned back into
+    their object space (``R^T n``), where ``uv`` is defined."""
+    if rotation is None:
+        return outward
+    r = np.take(rotation, idx, axis=-1).astype(outward.dtype, copy=False)  # (3, 3, N)
+    return np.stack([r[0, i] * outward[0] + r[1, i] * outward[1] + r[2, i] * outward[2] for i in range(3)])
+
+
 class SphereSet(ShapeKind):
-    """Spheres as arrays: ``center (3, M)``, ``radius (M,)``, at the render's precision."""
+    """Spheres as arrays: ``center (3, M)``, ``radius (M,)``, at the render's precision.
+
+    Moving spheres (motion blur) add ``velocity (3, M)`` = ``center1 - center``
+    (``None`` when nothing moves): at time ``t`` a sphere's centre is
+    ``center + t velocity``, computed in the render's precision, so a still
+    sphere (velocity 0) meets every ray exactly as it would without motion.
+    """
 
     FIELDS = ("center", "radius_squared")
     name = "sphere"
 
-    def __init__(self, center, radius, material_idx, dtype=np.float64):
+    def __init__(self, center, radius, material_idx, dtype=np.float64, velocity=None):
         center = np.asarray(center, dtype=np.float64).reshape(3, -1)
         radius = np.asarray(radius, dtype=np.float64)
         # derived terms in float64 first, then stored at the render's precision
@@ -39,6 +75,13 @@ class SphereSet(ShapeKind):
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
         self.radius_squared = (radius * radius).astype(dtype)
         self.inverse_radius = (1.0 / radius).astype(dtype)
+        self.rotation = None  # (3, 3, M) float64 where some sphere is turned (for uv); see world_rotation
+        self.velocity = None
+        if velocity is not None:
+            # the end centre rounded to the render's precision, and the velocity
+            # taken from the rounded centres: c + 1 * v then lands on it
+            end = np.asarray(velocity, dtype=np.float64).reshape(3, -1) + center
+            self.velocity = np.ascontiguousarray(end.astype(dtype) - self.center)
 
     @classmethod
     def build(cls, spheres: list[Sphere], material_idx, dtype) -> SphereSet:
@@ -47,14 +90,63 @@ class SphereSet(ShapeKind):
         radius = np.zeros(m)
         for i, s in enumerate(spheres):  # per scene object, at compile time
             center[:, i], radius[i] = world_sphere(s)
-        return cls(center, radius, material_idx, dtype)
+        velocity = None
+        moving = [i for i, s in enumerate(spheres) if s.center1 is not None]
+        if moving:
+            velocity = np.zeros((3, m))
+            for i in moving:
+                velocity[:, i] = world_center1(spheres[i]) - center[:, i]
+            if not velocity.any():  # every centre1 is its centre: nothing moves
+                velocity = None
+        spheres_set = cls(center, radius, material_idx, dtype, velocity)
+        turned = [(i, r) for i, r in ((i, world_rotation(s)) for i, s in enumerate(spheres)
+                                      if s.transform is not None) if r is not None]
+        if turned:
+            spheres_set.rotation = np.repeat(np.eye(3)[:, :, None], m, axis=2)
+            for i, r in turned:
+                spheres_set.rotation[:, :, i] = r
+        return spheres_set
+
+    @property
+    def moving(self) -> bool:
+        return self.velocity is not None
+
+    def center_at(self, idx, time) -> np.ndarray:
+        """Centres ``(3, N)`` of spheres ``idx`` at times ``time (N,)`` (or their
+        still centres when nothing moves or no time is given)."""
+        center = gather(self.center, idx)
+        if self.velocity is None or time is None:
+            return center
+        return center + gather(self.velocity, idx) * np.asarray(time).astype(self.dtype, copy=False)
 
     def bounds(self):
+        """Boxes holding each sphere over the whole shutter interval [0, 1]."""
         c, r = self.center.astype(np.float64), self.radius.astype(np.float64)
-        return c - r, c + r
+        if self.velocity is None:
+            return c - r, c + r
+        end = c + self.velocity.astype(np.float64)
+        return np.minimum(c, end) - r, np.maximum(c, end) + r
 
     def bounding_sphere(self):
-        return self.center.astype(np.float64), self.radius.astype(np.float64)
+        """A sphere holding each sphere over [0, 1]: centred half-way, grown by half the path."""
+        c, r = self.center.astype(np.float64), self.radius.astype(np.float64)
+        if self.velocity is None:
+            return c, r
+        v = self.velocity.astype(np.float64)
+        return c + 0.5 * v, r + 0.5 * np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+    def t_block(self, start, stop, origin, direction, time=None):
+        if self.velocity is None or time is None:
+            return super().t_block(start, stop, origin, direction)
+        center, radius_squared = self.block(start, stop)
+        center = center + self.velocity[:, start:stop, None] * np.asarray(time).astype(self.dtype, copy=False)
+        return self.exact_t(center, radius_squared, origin[:, None, :], direction[:, None, :])
+
+    def t_pairs(self, idx, origin, direction, time=None):
+        if self.velocity is None or time is None:
+            return super().t_pairs(idx, origin, direction)
+        center, radius_squared = self.gather(idx)
+        return self.exact_t(self.center_at(idx, time), radius_squared, origin, direction)
 
     @staticmethod
     def exact_t(center, radius_squared, origin, direction):
@@ -62,10 +154,10 @@ class SphereSet(ShapeKind):
         :func:`wavefront.geometry.sphere_roots` for why this arithmetic."""
         return nearest_root(*sphere_roots(center, radius_squared, origin, direction))
 
-    def surface(self, idx, origin, direction, t, uv: bool):
+    def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = origin + t * direction
-        outward = (point - gather(self.center, idx)) * self.inverse_radius.take(idx)
-        return point, outward, outward, (sphere_uv(outward) if uv else None)
+        outward = (point - self.center_at(idx, time)) * self.inverse_radius.take(idx)
+        return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
 
 
 def sphere_uv(outward: np.ndarray) -> np.ndarray:

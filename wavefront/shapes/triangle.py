@@ -146,7 +146,7 @@ class TriangleSet(ShapeKind):
             ok = (t > T_MIN) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1) & in_box(p, box_lo, box_hi)
         return np.where(ok, t, np.inf)
 
-    def surface(self, idx, origin, direction, t, uv: bool):
+    def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = origin + t * direction
         outward = gather(self.normal, idx)
         shading = outward
