@@ -41,7 +41,7 @@ def main():
     print("  orange: {type: lambertian, albedo: [0.7, 0.3, 0.1]}")
     print("  glass:  {type: dielectric, refraction_index: 1.5}")
     print("  fuzzy:  {type: metal, albedo: [0.8, 0.8, 0.9], fuzz: 1.0}")
-    print("  earth:  {type: lambertian, albedo: {type: image, file: textures/earth.png}}")
+    print("  earth:  {type: lambertian, albedo: {type: image, file: earthmap.png}}")
     print("  marble: {type: lambertian, albedo: {type: noise, scale: 0.2}}")
     print("  white:  {type: lambertian, albedo: [0.73, 0.73, 0.73]}")
     print("boxes:")
