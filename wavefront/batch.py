@@ -31,6 +31,14 @@ class PathBatch:
     bsdf_pdf: np.ndarray | None = None  # (N,) float64
     specular: np.ndarray | None = None  # (N,) bool
     eta_scale: np.ndarray | None = None  # (N,) float64
+    # Participating media (None in a scene without): the media the path is
+    # inside as bits (see wavefront.media), the boundaries crossed since its
+    # last vertex (they pick its free-flight numbers and bound the crossings),
+    # and that vertex's position (the ray's origin moves at every crossing; MIS
+    # needs the light's pdf from the vertex).
+    media_mask: np.ndarray | None = None  # (N,) uint64
+    crossings: np.ndarray | None = None  # (N,) int32
+    vertex: np.ndarray | None = None  # (3, N), the render's precision
 
     def __len__(self) -> int:
         return self.slot.shape[0]
@@ -57,13 +65,15 @@ class PathBatch:
 @dataclass(slots=True)
 class ShadowBatch:
     """Shadow rays of next-event estimation: each adds ``contribution`` to its
-    sample's radiance unless something lies between ``origin`` and ``t_max``."""
+    sample's radiance unless something lies between ``origin`` and ``t_max``
+    (times the transmittance of the media it passes through)."""
 
     origin: np.ndarray  # (3, S)
     direction: np.ndarray  # (3, S), unit
     t_max: np.ndarray  # (S,)
     contribution: np.ndarray  # (3, S), MIS-weighted, throughput included
     slot: np.ndarray  # (S,) int64
+    media_mask: np.ndarray | None = None  # (S,) uint64: the media at the origin (None: no media)
 
     def __len__(self) -> int:
         return self.slot.shape[0]

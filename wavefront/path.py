@@ -43,9 +43,11 @@ import numpy as np
 from .batch import PathBatch, ShadowBatch
 from .units import Job
 from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
-from .sampling import (bounce_dimension, light_choice_dimension, light_point_dimension, path_state, uniform_pairs,
-                       uniform_pairs_at)
+from .media import ISOTROPIC_PDF, cross, current_medium, medium_albedo, transmittance
+from .sampling import (CROSSINGS_PER_SEGMENT, bounce_dimension, light_choice_dimension, light_point_dimension,
+                       medium_dimension, path_state, random_unit_vector, uniform_pairs, uniform_pairs_at)
 from .scene import CompiledScene
+from .shapes import Hits
 from .vecmath import dot, gather, scatter, scatter_add
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
@@ -80,6 +82,10 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
     origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
+    media = {}
+    if cs.media is not None:  # camera rays start in the media around the camera
+        media = dict(media_mask=np.full(n, cs.media.camera_mask, dtype=np.uint64),
+                     crossings=np.zeros(n, dtype=np.int32), vertex=origin)
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -90,6 +96,7 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
         bsdf_pdf=np.zeros(n),
         specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
         eta_scale=np.ones(n),
+        **media,
     )
 
 
@@ -151,20 +158,29 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             break
         stats.segments += len(live)
         hits = cs.shapes.intersect(live.origin, live.direction)
+        carried = []  # paths that go on without reaching a surface this iteration
+        if cs.media is not None:
+            live, hits, in_medium, point, crossed = travel_media(cs, live, hits)
+            carried.append(crossed)
+            if len(in_medium):
+                carried.append(scatter_in_media(cs, in_medium, point, emitters, radiance, stats))
         live, surface = escaped(cs, live, hits, radiance)
-        if len(live) == 0:
-            continue
-        absorbed = emitted(cs, live, surface, radiance, emitters)
-        diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
-        if emitters is not None:
-            shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth)
-            trace_shadow_rays(cs, shadows, radiance, stats)
-        direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed)
-        if diffuse is not None:
-            record_sampling(cs, live, surface, diffuse, direction)
-        if roulette is not None:
-            absorbed = russian_roulette(live, absorbed, roulette.depth)
-        live = advance(live, surface, direction, absorbed, settings.depth)
+        if len(live):
+            absorbed = emitted(cs, live, surface, radiance, emitters)
+            diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
+            if emitters is not None:
+                shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth)
+                trace_shadow_rays(cs, shadows, radiance, stats)
+            direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed)
+            if diffuse is not None:
+                record_sampling(cs, live, surface, diffuse, direction)
+            if roulette is not None:
+                absorbed = russian_roulette(live, absorbed, roulette.depth)
+            if cs.media is not None:
+                cross_interfaces(cs, live, surface, direction, absorbed)
+            live = advance(live, surface, direction, absorbed, settings.depth)
+        for batch in carried:
+            live = PathBatch.concat(live, batch)
     return radiance
 
 
@@ -243,7 +259,9 @@ def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
     if diffuse.size:
         rows = sel.take(diffuse)
         e = e.take(diffuse)
-        p_light = emitters.pdf(e, gather(live.origin, rows), gather(surface.point, rows))
+        # the previous vertex: the ray's origin, unless it has moved across media boundaries since
+        vertex = live.origin if live.vertex is None else live.vertex
+        p_light = emitters.pdf(e, gather(vertex, rows), gather(surface.point, rows))
         weight[diffuse] = mis_weight(live.bsdf_pdf.take(rows), p_light)
     return weight
 
@@ -280,16 +298,58 @@ def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, diffuse
     contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
-                       contribution=contribution, slot=live.slot.take(rows))
+                       contribution=contribution, slot=live.slot.take(rows),
+                       media_mask=None if live.media_mask is None else live.media_mask.take(rows))
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
-    """Stage 6: the any-hit query for every shadow ray; the unblocked add their contribution."""
+    """Stage 6: the any-hit query for every shadow ray; the unblocked add their
+    contribution (with media, times the transmittance along the way)."""
     if len(shadows) == 0:
         return
     stats.shadow_rays += len(shadows)
-    visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max))
-    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
+    if shadows.media_mask is None:
+        visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max))
+        scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
+        return
+    fraction = shadow_transmittance(cs, shadows)
+    visible = np.flatnonzero(fraction > 0.0)
+    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible) * fraction.take(visible))
+
+
+def shadow_transmittance(cs: CompiledScene, shadows: ShadowBatch) -> np.ndarray:
+    """The fraction of light reaching each shadow ray's origin along it: 0 if
+    an opaque surface is in the way, else the product of ``exp(-density *
+    length)`` over the pieces between media boundaries; shape ``(S,)``.
+
+    Boundaries do not block: a shadow ray is intersected again from each
+    boundary it crosses (nearest hits, not the any-hit query), its media mask
+    updated as a path's is, at most ``CROSSINGS_PER_SEGMENT`` times (a ray
+    past that counts as blocked).
+    """
+    media = cs.media
+    fraction = np.ones(len(shadows))
+    ray = np.arange(len(shadows))
+    origin, direction, t_left, mask = shadows.origin, shadows.direction, shadows.t_max, shadows.media_mask
+    for _ in range(CROSSINGS_PER_SEGMENT + 1):
+        hits = cs.shapes.intersect(origin, direction, t_left)
+        prim = hits.primitive_idx
+        hit = prim >= 0
+        length = np.where(hit, hits.t, t_left).astype(np.float64)
+        medium = current_medium(mask)
+        density = np.where(medium >= 0, media.density.take(np.maximum(medium, 0)), 0.0)
+        fraction[ray] *= transmittance(density, length)
+        boundary = np.where(hit, media.crossing_of.take(np.maximum(prim, 0)), -1)
+        fraction[ray.take(np.flatnonzero(hit & (boundary < 0)))] = 0.0  # an opaque surface
+        go = np.flatnonzero(boundary >= 0)
+        if go.size == 0:
+            return fraction
+        t = hits.t.take(go)
+        surface = cs.shapes.surface(gather(origin, go), gather(direction, go), t, prim.take(go))
+        mask = cross(mask.take(go), boundary.take(go), surface.front_face)
+        origin, direction, t_left, ray = surface.point, gather(direction, go), t_left.take(go) - t, ray.take(go)
+    fraction[ray] = 0.0  # still crossing: rounding trouble, not light
+    return fraction
 
 
 def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed):
@@ -362,10 +422,135 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
     """Stage 9: paths continue from their hit points; absorbed paths end, and
     so do paths that have used ``max_depth`` segments (they contribute
     nothing more); the survivors are compacted."""
-    live.origin = surface.point
+    return _advance(live, surface.point, direction, absorbed, max_depth)
+
+
+def _advance(live: PathBatch, point, direction, absorbed, max_depth: int) -> PathBatch:
+    live.origin = point
     live.direction = direction
+    if live.vertex is not None:
+        live.vertex = point
+        live.crossings = np.zeros(len(live), dtype=np.int32)
     live.depth += 1
     alive = ~absorbed & (live.depth < max_depth)
     if not alive.all():
         live = live.take(np.flatnonzero(alive))
     return live
+
+
+# -- participating media (wavefront.media) ----------------------------------------
+
+def travel_media(cs: CompiledScene, live: PathBatch, hits):
+    """Stage 2b (scenes with media): free flight and boundary crossings.
+
+    A path inside a medium draws the distance to its next interaction,
+    ``-ln(1 - u) / density`` (analog sampling: the probability of flying past
+    a distance is the transmittance, so neither outcome reweights the
+    throughput, and light reached through the medium needs no transmittance
+    factor).  If it is nearer than the surface hit, the path scatters in the
+    medium there.  Otherwise a path whose hit is an invisible boundary crosses
+    it: its media mask changes and it moves onto the boundary, to go on in
+    the same direction next iteration without spending a segment of
+    ``max_depth`` (at most ``CROSSINGS_PER_SEGMENT`` times between vertices).
+
+    Returns
+    -------
+    (paths that reached a surface or escaped, their hits, paths scattering in
+    a medium, the points ``(3, K)`` where they scatter, paths that crossed)
+    """
+    media = cs.media
+    n = len(live)
+    t_hit, prim = hits.t, hits.primitive_idx
+    medium = current_medium(live.media_mask)
+    inside = np.flatnonzero(medium >= 0)
+    scatters = np.zeros(n, dtype=bool)
+    t_scatter = np.zeros(0)
+    if inside.size:
+        u = uniform_pairs_at(live.state.take(inside),
+                             medium_dimension(live.depth.take(inside), live.crossings.take(inside)))[0]
+        with np.errstate(divide="ignore"):  # density 0: an infinite flight, the medium is not there
+            t_free = -np.log1p(-u) / media.density.take(medium.take(inside))
+        near = np.flatnonzero(t_free < t_hit.take(inside))
+        scatters[inside.take(near)] = True
+        t_scatter = t_free.take(near)
+    boundary = np.where(prim >= 0, media.crossing_of.take(np.maximum(prim, 0)), -1)
+    crosses = ~scatters & (boundary >= 0)
+
+    scatter_idx = np.flatnonzero(scatters)
+    in_medium = live.take(scatter_idx)
+    point = in_medium.origin + t_scatter.astype(cs.dtype) * in_medium.direction
+
+    cross_idx = np.flatnonzero(crosses)
+    crossed = live.take(cross_idx)
+    if cross_idx.size:
+        surface = cs.shapes.surface(crossed.origin, crossed.direction, t_hit.take(cross_idx), prim.take(cross_idx))
+        crossed.origin = surface.point
+        crossed.media_mask = cross(crossed.media_mask, boundary.take(cross_idx), surface.front_face)
+        crossed.crossings = crossed.crossings + 1
+        stuck = crossed.crossings >= CROSSINGS_PER_SEGMENT
+        if stuck.any():
+            crossed = crossed.take(np.flatnonzero(~stuck))
+
+    rest = np.flatnonzero(~scatters & ~crosses)
+    if rest.size < n:
+        live, hits = live.take(rest), Hits(t_hit.take(rest), prim.take(rest))
+    return live, hits, in_medium, point, crossed
+
+
+def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radiance, stats: TraceStats) -> PathBatch:
+    """Stages 5-9 for vertices in media: a light sample (shadow rays
+    attenuated by transmittance), then the isotropic phase function's sample
+    (uniform on the sphere, pdf ``1 / (4 pi)``, so the throughput is
+    multiplied by the albedo alone), roulette, and the next segment.  A black
+    medium (albedo 0) is a pure absorber: its paths end here.  Returns the
+    paths that go on."""
+    settings = cs.scene.render
+    albedo = medium_albedo(cs.media.albedo, current_medium(live.media_mask), point)
+    absorbed = albedo.max(axis=0) <= 0.0
+    if emitters is not None:
+        shadows = sample_lights_in_media(cs, emitters, live, point, albedo, absorbed, settings.depth)
+        trace_shadow_rays(cs, shadows, radiance, stats)
+    u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
+    direction = random_unit_vector(u[0], u[1])
+    live.throughput *= albedo
+    live.bsdf_pdf = np.full(len(live), ISOTROPIC_PDF)
+    live.specular = np.zeros(len(live), dtype=bool)
+    if settings.russian_roulette is not None:
+        absorbed = russian_roulette(live, absorbed, settings.russian_roulette.depth)
+    return _advance(live, point, direction, absorbed, settings.depth)
+
+
+def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, albedo, absorbed,
+                           max_depth: int) -> ShadowBatch:
+    """One light sample per medium vertex, as :func:`sample_lights` does for
+    surfaces, with the isotropic phase function ``1 / (4 pi)`` as both the
+    scattering function and the pdf MIS weighs it against.  The contribution
+    is ``throughput * albedo / (4 pi) * radiance * w_light / p_light`` (the
+    transmittance comes with the shadow ray)."""
+    rows = np.flatnonzero(~absorbed & (live.depth + 1 < max_depth))
+    state, depth = live.state.take(rows), live.depth.take(rows)
+    u_point = uniform_pairs_at(state, light_point_dimension(depth))
+    u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
+    origin = gather(point, rows)
+    light = emitters.sample(origin, u_choice, u_point)
+    ok = np.flatnonzero(light.radiance.max(axis=0) > 0.0)
+    rows, pdf = rows.take(ok), light.pdf.take(ok)
+    contribution = (gather(live.throughput, rows) * gather(albedo, rows) * gather(light.radiance, ok)
+                    * (ISOTROPIC_PDF * mis_weight(pdf, ISOTROPIC_PDF) / pdf))
+    return ShadowBatch(origin=gather(origin, ok), direction=gather(light.direction, ok).astype(cs.dtype),
+                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
+                       contribution=contribution, slot=live.slot.take(rows), media_mask=live.media_mask.take(rows))
+
+
+def cross_interfaces(cs: CompiledScene, live: PathBatch, surface, direction, absorbed) -> None:
+    """Paths transmitted through a visible surface that also bounds a medium
+    (a glass ball full of fog) enter or leave that medium; reflected paths
+    stay where they were."""
+    medium = cs.media.interface_of.take(surface.primitive_idx)
+    rows = np.flatnonzero((medium >= 0) & ~absorbed)
+    if rows.size == 0:
+        return
+    # the geometric normal faces the incoming ray: a transmitted direction leaves on its far side
+    through = rows.take(np.flatnonzero(dot(gather(surface.geometric_normal, rows), gather(direction, rows)) < 0.0))
+    live.media_mask[through] = cross(live.media_mask.take(through), medium.take(through),
+                                     surface.front_face.take(through))

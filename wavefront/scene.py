@@ -35,7 +35,8 @@ from .background import Background, Sky, Solid
 from .camera import Camera
 from .geometry import Sphere, position, precision_for
 from .lights import EmitterTable
-from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
+from .materials import Dielectric, Emissive, Interface, Lambertian, Material, MaterialTable, Metal, Phong
+from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, contains
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
 from .validation import SceneError, color, describe, fail, instance, integer, source_of, string
@@ -187,6 +188,8 @@ class Scene:
                                          (a box is six quads)
     ``triangles``   ()                   list of :class:`~wavefront.shapes.Triangle`
     ``meshes``      ()                   list of :class:`~wavefront.shapes.Mesh`
+    ``media``       ()                   list of :class:`~wavefront.media.Medium`
+                                         (``path`` integrator only)
     ``camera``      ``Camera()``         see :class:`wavefront.camera.Camera`
     ``width``       400                  image width in pixels
     ``height``      225                  image height in pixels
@@ -211,6 +214,7 @@ class Scene:
     quads: list[Quad] = field(default_factory=list)
     triangles: list[Triangle] = field(default_factory=list)
     meshes: list[Mesh] = field(default_factory=list)
+    media: list[Medium] = field(default_factory=list)
 
     def __post_init__(self):
         """Check every field and how they fit together; normalise sequences to
@@ -249,9 +253,16 @@ class Scene:
             shapes[key] = self._shape_list(key, kind)
             set_field(self, key, shapes[key])
             self._check_references(materials, key, shapes[key])
-        if not any(shapes.values()):
+        media = self._shape_list("media", Medium)
+        set_field(self, "media", media)
+        if len(media) > MAX_MEDIA:
+            fail(self, "media", f"{len(media)} media; at most {MAX_MEDIA} are supported (a path holds its "
+                                "media as the bits of one 64-bit mask)")
+        if media and self.render.integrator != "path":
+            fail(self, "media", "media need the path integrator (render.integrator: path)")
+        if not any(shapes.values()) and not media:
             fail(self, "shapes", "the scene has no shapes (give at least one of: spheres, quads, boxes, "
-                                 "triangles, meshes)")
+                                 "triangles, meshes, media)")
 
         lights = self.lights
         if not isinstance(lights, Sequence) or isinstance(lights, str):
@@ -329,6 +340,7 @@ class CompiledScene:
     light_color: np.ndarray  # (3, L)
     dtype: np.dtype
     emitters: EmitterTable | None = None  # every emissive primitive, for light sampling (path)
+    media: MediumTable | None = None  # participating media, None in a scene without
 
     @classmethod
     def build(cls, scene: Scene) -> CompiledScene:
@@ -339,24 +351,40 @@ class CompiledScene:
         dtype = precision_of(scene, bounds)
         names = list(scene.materials)
         index = {name: i for i, name in enumerate(names)}
-        table = MaterialTable.build([scene.materials[n] for n in names], names, dtype)
+        materials = [scene.materials[n] for n in names]
+        if scene.media:  # one more row, past the scene's: what boundary primitives are made of
+            materials, names = materials + [Interface()], names + ["<medium boundary>"]
+        table = MaterialTable.build(materials, names, dtype)
         extent = scene_extent(scene, bounds)
-        primitives = compile_shapes(scene, index, dtype, extent)
+        primitives, media = compile_shapes(scene, index, dtype, extent, with_media=True)
         emitters = EmitterTable.build(primitives, table) if scene.render.integrator == "path" else None
         shapes = build_intersector(primitives, extent)
         nl = len(scene.lights)
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
-        return cls(scene, shapes, table, light_position, light_color, dtype, emitters)
+        return cls(scene, shapes, table, light_position, light_color, dtype, emitters, media)
 
 
-def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) -> Primitives:
-    """Every shape of ``scene`` in world space (each transform applied once, here) as one :class:`Primitives`."""
+def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float, with_media: bool = False):
+    """Every shape of ``scene`` in world space (each transform applied once, here) as one :class:`Primitives`.
+
+    Media boundaries are appended to their kind's set, after the scene's own
+    primitives (so a scene without media numbers its primitives as before).
+    With ``with_media``, returns ``(primitives, MediumTable or None)``.
+    """
     def material(shape):
         return shape.material if isinstance(shape.material, int) else index[shape.material]
 
-    spheres = SphereSet.build(scene.spheres, [material(s) for s in scene.spheres], dtype)
-    quads = QuadSet.build(scene.quads, [material(q) for q in scene.quads], dtype, extent)
+    boundaries = _Boundaries(scene, len(scene.materials))
+    sphere_center, sphere_radius = _world_spheres(scene.spheres)
+    sphere_material = np.array([material(s) for s in scene.spheres], dtype=np.int32)
+    sphere_center, sphere_radius, sphere_material = boundaries.add_spheres(sphere_center, sphere_radius,
+                                                                           sphere_material)
+    spheres = SphereSet(sphere_center, sphere_radius, sphere_material, dtype)
+    quad_rows = np.array([np.concatenate(q.world()) for q in scene.quads], dtype=np.float64).reshape(-1, 9)
+    quad_material = np.array([material(q) for q in scene.quads], dtype=np.int32)
+    quad_rows, quad_material = boundaries.add_rows("quads", quad_rows, quad_material)
+    quads = QuadSet(quad_rows[:, 0:3].T, quad_rows[:, 3:6].T, quad_rows[:, 6:9].T, quad_material, dtype, extent)
     # loose triangles and every mesh's triangles form one triangle set
     parts, materials = [], []
     if scene.triangles:
@@ -369,6 +397,14 @@ def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) ->
     material_idx = np.concatenate(materials) if materials else np.zeros(0, np.int32)
     joined = {key: np.concatenate([p[key] for p in parts], axis=-1) if parts else np.zeros((3, 0))
               for key in ("v0", "v1", "v2")}
+    if boundaries.has("triangles"):
+        rows = np.concatenate((joined["v0"], joined["v1"], joined["v2"])).T
+        rows, material_idx = boundaries.add_rows("triangles", rows, material_idx)
+        first = joined["v0"].shape[1]
+        joined = {key: rows[:, 3 * k:3 * k + 3].T for k, key in enumerate(("v0", "v1", "v2"))}
+        if rows.shape[0] > first:  # boundary triangles are flat, with barycentric uv (never shaded)
+            parts.append({key: joined[key][:, first:] for key in ("v0", "v1", "v2")}
+                         | dict(vertex_normal=None, vertex_uv=None))
     normals = uvs = None
     if any(p["vertex_normal"] is not None for p in parts):  # flat triangles repeat their face normal
         normals = np.concatenate([p["vertex_normal"] if p["vertex_normal"] is not None else
@@ -378,7 +414,102 @@ def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) ->
         uvs = np.concatenate([p["vertex_uv"] if p["vertex_uv"] is not None else
                               np.broadcast_to(corners, (3, 2, p["v0"].shape[1])) for p in parts], axis=-1)
     triangles = TriangleSet(joined["v0"], joined["v1"], joined["v2"], material_idx, dtype, extent, normals, uvs)
-    return Primitives([spheres, quads, triangles], dtype, exact_pad(dtype, extent))
+    primitives = Primitives([spheres, quads, triangles], dtype, exact_pad(dtype, extent))
+    if not with_media:
+        return primitives
+    return primitives, boundaries.table(primitives)
+
+
+def _world_spheres(spheres: list[Sphere]) -> tuple[np.ndarray, np.ndarray]:
+    """World-space ``center (3, M)`` and ``radius (M,)`` float64 (as ``SphereSet.build``)."""
+    from .shapes.sphere import world_sphere
+
+    center, radius = np.zeros((3, len(spheres))), np.zeros(len(spheres))
+    for i, s in enumerate(spheres):  # per scene object, at compile time
+        center[:, i], radius[i] = world_sphere(s)
+    return center, radius
+
+
+def _matching_rows(visible: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """For each row of ``wanted (B, K)``, the index of an identical row of
+    ``visible (M, K)`` (both float64), or -1; sorted byte keys, no Python loop."""
+    found = np.full(wanted.shape[0], -1, dtype=np.int64)
+    if visible.shape[0] == 0 or wanted.shape[0] == 0:
+        return found
+    key = np.dtype((np.void, 8 * visible.shape[1]))
+    have = np.ascontiguousarray(visible + 0.0).view(key).ravel()  # + 0.0: -0.0 and 0.0 get the same bytes
+    want = np.ascontiguousarray(wanted + 0.0).view(key).ravel()
+    order = np.argsort(have, kind="stable")
+    pos = np.minimum(np.searchsorted(have[order], want), have.size - 1)
+    hit = have[order[pos]] == want
+    found[hit] = order[pos[hit]]
+    return found
+
+
+class _Boundaries:
+    """Media boundaries on their way into the scene's primitive sets (see
+    :mod:`wavefront.media`): each kind's boundary primitives are appended to
+    the kind, except those identical to a visible primitive, which becomes
+    the boundary itself (an interface)."""
+
+    def __init__(self, scene: Scene, interface_material: int):
+        self.material = interface_material
+        self.scene = scene
+        self.parts = {"spheres": [], "quads": [], "triangles": []}  # (medium, rows (B, K))
+        for m, medium in enumerate(scene.media):
+            kind, value = boundary_primitives(medium)
+            if kind == "sphere":
+                center, radius = value
+                self.parts["spheres"].append((m, np.append(center, radius)[None, :]))
+            elif kind == "quads":
+                self.parts["quads"].append((m, np.array([np.concatenate(q.world()) for q in value])))
+            else:
+                self.parts["triangles"].append((m, np.concatenate((value["v0"], value["v1"], value["v2"])).T))
+        # per kind: (M_kind,) medium of each primitive, invisible boundaries and interfaces apart
+        self.crossing, self.interface = {}, {}
+
+    def has(self, kind: str) -> bool:
+        return bool(self.parts[kind])
+
+    def add_rows(self, kind: str, rows: np.ndarray, material_idx: np.ndarray):
+        """``rows (M, K)`` and ``material_idx (M,)`` with the kind's boundary rows appended."""
+        m = rows.shape[0]
+        crossing, interface = [np.full(m, -1, dtype=np.int32)], np.full(m, -1, dtype=np.int32)
+        new_rows, new_material = [rows], [material_idx]
+        for medium, wanted in self.parts[kind]:
+            same = _matching_rows(rows, wanted)
+            interface[same[same >= 0]] = medium
+            extra = wanted[same < 0]
+            new_rows.append(extra)
+            new_material.append(np.full(extra.shape[0], self.material, dtype=np.int32))
+            crossing.append(np.full(extra.shape[0], medium, dtype=np.int32))
+        self.crossing[kind] = np.concatenate(crossing)
+        self.interface[kind] = np.concatenate((interface, np.full(self.crossing[kind].size - m, -1, np.int32)))
+        return np.concatenate(new_rows), np.concatenate(new_material)
+
+    def add_spheres(self, center, radius, material_idx):
+        rows, material_idx = self.add_rows("spheres", np.concatenate((center, radius[None, :])).T, material_idx)
+        return rows[:, :3].T, rows[:, 3], material_idx
+
+    def table(self, primitives: Primitives) -> MediumTable | None:
+        media = self.scene.media
+        if not media:
+            return None
+        crossing = np.concatenate([self.crossing.get(k, np.full(n, -1, np.int32)) for k, n in
+                                   zip(("spheres", "quads", "triangles"), self._sizes(primitives))])
+        interface = np.concatenate([self.interface.get(k, np.full(n, -1, np.int32)) for k, n in
+                                    zip(("spheres", "quads", "triangles"), self._sizes(primitives))])
+        look_from = self.scene.camera.look_from
+        camera_mask = sum((1 << m) for m, medium in enumerate(media) if contains(medium, look_from))
+        return MediumTable(density=np.array([m.density for m in media], dtype=np.float64),
+                           albedo=np.array([m.albedo for m in media], dtype=np.float64).reshape(-1, 3).T.copy(),
+                           crossing_of=crossing, interface_of=interface, camera_mask=np.uint64(camera_mask))
+
+    @staticmethod
+    def _sizes(primitives: Primitives):
+        """Primitives per kind (spheres, quads, triangles), empty kinds included."""
+        sizes = {type(k).__name__: len(k) for k in primitives.kinds}
+        return [sizes.get(name, 0) for name in ("SphereSet", "QuadSet", "TriangleSet")]
 
 
 def _face_normal(part: dict) -> np.ndarray:
@@ -405,9 +536,22 @@ def shape_points(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     for m in scene.meshes:
         vertices = m.vertices if m.transform is None else m.transform.points(m.vertices.T).T
         points.append(vertices)
-    points = np.concatenate(points)
-    radii.append(np.zeros(points.shape[0] - sum(r.size for r in radii)))
-    return points, np.concatenate(radii)
+    radii.append(np.zeros(sum(p.shape[0] for p in points) - sum(r.size for r in radii)))
+    for medium in scene.media:  # boundaries bound where rays go, too
+        kind, value = boundary_primitives(medium)
+        if kind == "sphere":
+            points.append(value[0][None, :])
+            radii.append(np.array([value[1]]))
+        else:
+            corners = (np.concatenate([_quad_corners(*q.world()) for q in value]) if kind == "quads"
+                       else np.concatenate((value["v0"], value["v1"], value["v2"]), axis=1).T)
+            points.append(corners)
+            radii.append(np.zeros(corners.shape[0]))
+    return np.concatenate(points), np.concatenate(radii)
+
+
+def _quad_corners(c, u, v) -> np.ndarray:
+    return np.array([c, c + u, c + v, c + u + v])
 
 
 def unknown_material(name: str, materials) -> str:
@@ -450,7 +594,7 @@ def precision_of(scene: Scene, shapes: tuple[np.ndarray, np.ndarray] | None = No
     choice = scene.render.precision
     if choice != "auto":
         return np.dtype(choice)
-    if scene.quads or scene.triangles or scene.meshes:
+    if scene.quads or scene.triangles or scene.meshes or scene.media:
         return np.dtype(np.float64)
     shapes = shapes if shapes is not None else shape_points(scene)
     return precision_for(shapes[1][:len(scene.spheres)], scene_extent(scene, shapes))  # spheres come first
