@@ -31,14 +31,9 @@ class PathBatch:
     bsdf_pdf: np.ndarray | None = None  # (N,) float64
     specular: np.ndarray | None = None  # (N,) bool
     eta_scale: np.ndarray | None = None  # (N,) float64
-    # Participating media (None in a scene without): the media the path is
-    # inside as bits (see wavefront.media), the boundaries crossed since its
-    # last vertex (they pick its free-flight numbers and bound the crossings),
-    # and that vertex's position (the ray's origin moves at every crossing; MIS
-    # needs the light's pdf from the vertex).
+    # The media the path is in, as bits (see wavefront.media); None in a
+    # scene without media.
     media_mask: np.ndarray | None = None  # (N,) uint64
-    crossings: np.ndarray | None = None  # (N,) int32
-    vertex: np.ndarray | None = None  # (3, N), the render's precision
 
     def __len__(self) -> int:
         return self.slot.shape[0]

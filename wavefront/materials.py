@@ -150,18 +150,8 @@ class Phong:
         object.__setattr__(self, "reflectivity", color(self, self.reflectivity, "reflectivity", high=1.0))
 
 
-@dataclass(frozen=True)
-class Interface:
-    """The internal material of a medium's boundary (pbrt-v4's ``interface``):
-    it only separates media and is never shaded.  Not available in scene
-    files; :mod:`wavefront.media` adds it when a scene has media."""
-
-    kind: ClassVar[str] = "interface"
-
-
 Material = Lambertian | Metal | Dielectric | Emissive | Phong
-# kind code = position; interface comes last so the others keep their codes
-KINDS = tuple(cls.kind for cls in (Lambertian, Metal, Dielectric, Emissive, Phong, Interface))
+KINDS = tuple(cls.kind for cls in (Lambertian, Metal, Dielectric, Emissive, Phong))  # kind code = position
 
 
 @dataclass(slots=True)

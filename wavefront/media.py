@@ -6,9 +6,13 @@ extinction coefficient, per unit length), an RGB single-scattering
 ``albedo`` and an isotropic phase function, filling the inside of a closed
 ``boundary`` (a sphere, a box or a closed mesh).
 
-The boundary's primitives join the scene's primitives (same brute force,
-same BVH) under the internal ``interface`` material (pbrt-v4's name for a
-surface that only separates media): they are never shaded.  A path carries
+The boundary's primitives are never shaded.  They live in an intersector of
+their own (brute force or a BVH, built by the same code as the scene's), not
+among the scene's shapes: a path finds its next surface from its vertex as
+it would without media, then walks the boundaries between the two.  (With
+the boundaries among the shapes, a ray restarted on a boundary skips any
+surface within ``T_MIN`` beyond it: fog resting on a floor let light leak
+through the floor at one sample in a few thousand.)  A path carries
 the set of media it is inside as a bit mask (medium ``i`` is bit ``i``);
 crossing a boundary's front (outer) side sets its bit, crossing its back
 side clears it.  **Overlapping media: the medium listed last wins.**  Where
@@ -190,15 +194,17 @@ def winding_number(triangles: dict, point: np.ndarray) -> float:
 class MediumTable:
     """A scene's media as arrays, built once when the scene is compiled.
 
-    ``crossing_of`` maps a scene-wide primitive to the medium whose invisible
-    boundary it is part of (-1: none), ``interface_of`` a visible primitive to
+    ``boundaries`` intersects the invisible boundary primitives (their own
+    brute force or BVH, apart from the scene's shapes; a hit's
+    ``material_idx`` is its medium), None when every boundary is a visible
+    primitive too.  ``interface_of`` maps each of the scene's primitives to
     the medium it also bounds (-1: none; see the module docstring).
     """
 
     density: np.ndarray  # (K,) float64
     albedo: np.ndarray  # (3, K) float64
-    crossing_of: np.ndarray  # (M,) int32
-    interface_of: np.ndarray  # (M,) int32
+    boundaries: object | None  # an Intersector over the boundary primitives
+    interface_of: np.ndarray  # (M,) int32, per scene primitive
     camera_mask: np.uint64  # the media containing the camera
 
     def __len__(self) -> int:

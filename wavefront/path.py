@@ -8,6 +8,10 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
 2. **intersect** every path with every shape (brute force or the BVH), and
    describe each hit in one :class:`~wavefront.shapes.SurfaceHits`;
 3. **escaped** paths add ``throughput * background`` and end;
+   **media** (scenes with participating media): free flight through the
+   media between a path's vertex and its hit, crossing invisible
+   boundaries; paths that scatter in a medium take stages 5-9 there
+   (:func:`scatter_in_media`);
 4. **emitted**: paths that hit an emitter end; those that struck its front
    side add ``throughput * color``;
 5. **sample lights** (``render.light_sampling``): at every diffuse hit,
@@ -46,11 +50,21 @@ from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scat
 from .media import ISOTROPIC_PDF, cross, current_medium, medium_albedo, transmittance
 from .sampling import (CROSSINGS_PER_SEGMENT, bounce_dimension, light_choice_dimension, light_point_dimension,
                        medium_dimension, path_state, random_unit_vector, uniform_pairs, uniform_pairs_at)
+from .geometry import T_MIN
 from .scene import CompiledScene
 from .shapes import Hits
 from .vecmath import dot, gather, scatter, scatter_add
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
+# After crossing a medium boundary, the search for the next one restarts this
+# far before the crossing: a boundary closer than T_MIN past the restart
+# point is skipped, so restarting on the crossing itself missed any other
+# boundary within T_MIN beyond it (where two media's boundaries meet: one
+# sample in a thousand lost its way in a unit-sized scene).  Now only those
+# within T_MIN - RESTART_BACKOFF (1e-6) are missed; the boundary just crossed
+# lies T_MIN - 1e-6 ahead, inside T_MIN, and is skipped (were rounding to find
+# it again, crossing it again from the same side changes nothing).
+RESTART_BACKOFF = T_MIN * (1.0 - 1e-3)
 # A shadow ray stops this fraction short of the light's surface, so that it
 # cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
 # the light than that is missed, 1e-4 of the distance.
@@ -82,10 +96,6 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
     origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
-    media = {}
-    if cs.media is not None:  # camera rays start in the media around the camera
-        media = dict(media_mask=np.full(n, cs.media.camera_mask, dtype=np.uint64),
-                     crossings=np.zeros(n, dtype=np.int32), vertex=origin)
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -96,7 +106,8 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
         bsdf_pdf=np.zeros(n),
         specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
         eta_scale=np.ones(n),
-        **media,
+        # camera rays start in the media around the camera
+        media_mask=None if cs.media is None else np.full(n, cs.media.camera_mask, dtype=np.uint64),
     )
 
 
@@ -158,12 +169,11 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             break
         stats.segments += len(live)
         hits = cs.shapes.intersect(live.origin, live.direction)
-        carried = []  # paths that go on without reaching a surface this iteration
+        in_medium = None
         if cs.media is not None:
-            live, hits, in_medium, point, crossed = travel_media(cs, live, hits)
-            carried.append(crossed)
+            live, hits, in_medium, point = travel_media(cs, live, hits)
             if len(in_medium):
-                carried.append(scatter_in_media(cs, in_medium, point, emitters, radiance, stats))
+                in_medium = scatter_in_media(cs, in_medium, point, emitters, radiance, stats)
         live, surface = escaped(cs, live, hits, radiance)
         if len(live):
             absorbed = emitted(cs, live, surface, radiance, emitters)
@@ -179,8 +189,8 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             if cs.media is not None:
                 cross_interfaces(cs, live, surface, direction, absorbed)
             live = advance(live, surface, direction, absorbed, settings.depth)
-        for batch in carried:
-            live = PathBatch.concat(live, batch)
+        if in_medium is not None:
+            live = PathBatch.concat(live, in_medium)
     return radiance
 
 
@@ -259,9 +269,7 @@ def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
     if diffuse.size:
         rows = sel.take(diffuse)
         e = e.take(diffuse)
-        # the previous vertex: the ray's origin, unless it has moved across media boundaries since
-        vertex = live.origin if live.vertex is None else live.vertex
-        p_light = emitters.pdf(e, gather(vertex, rows), gather(surface.point, rows))
+        p_light = emitters.pdf(e, gather(live.origin, rows), gather(surface.point, rows))
         weight[diffuse] = mis_weight(live.bsdf_pdf.take(rows), p_light)
     return weight
 
@@ -308,48 +316,12 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     if len(shadows) == 0:
         return
     stats.shadow_rays += len(shadows)
-    if shadows.media_mask is None:
-        visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max))
-        scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
-        return
-    fraction = shadow_transmittance(cs, shadows)
-    visible = np.flatnonzero(fraction > 0.0)
-    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible) * fraction.take(visible))
-
-
-def shadow_transmittance(cs: CompiledScene, shadows: ShadowBatch) -> np.ndarray:
-    """The fraction of light reaching each shadow ray's origin along it: 0 if
-    an opaque surface is in the way, else the product of ``exp(-density *
-    length)`` over the pieces between media boundaries; shape ``(S,)``.
-
-    Boundaries do not block: a shadow ray is intersected again from each
-    boundary it crosses (nearest hits, not the any-hit query), its media mask
-    updated as a path's is, at most ``CROSSINGS_PER_SEGMENT`` times (a ray
-    past that counts as blocked).
-    """
-    media = cs.media
-    fraction = np.ones(len(shadows))
-    ray = np.arange(len(shadows))
-    origin, direction, t_left, mask = shadows.origin, shadows.direction, shadows.t_max, shadows.media_mask
-    for _ in range(CROSSINGS_PER_SEGMENT + 1):
-        hits = cs.shapes.intersect(origin, direction, t_left)
-        prim = hits.primitive_idx
-        hit = prim >= 0
-        length = np.where(hit, hits.t, t_left).astype(np.float64)
-        medium = current_medium(mask)
-        density = np.where(medium >= 0, media.density.take(np.maximum(medium, 0)), 0.0)
-        fraction[ray] *= transmittance(density, length)
-        boundary = np.where(hit, media.crossing_of.take(np.maximum(prim, 0)), -1)
-        fraction[ray.take(np.flatnonzero(hit & (boundary < 0)))] = 0.0  # an opaque surface
-        go = np.flatnonzero(boundary >= 0)
-        if go.size == 0:
-            return fraction
-        t = hits.t.take(go)
-        surface = cs.shapes.surface(gather(origin, go), gather(direction, go), t, prim.take(go))
-        mask = cross(mask.take(go), boundary.take(go), surface.front_face)
-        origin, direction, t_left, ray = surface.point, gather(direction, go), t_left.take(go) - t, ray.take(go)
-    fraction[ray] = 0.0  # still crossing: rounding trouble, not light
-    return fraction
+    visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max))
+    contribution = gather(shadows.contribution, visible)
+    if shadows.media_mask is not None:
+        contribution *= shadow_transmittance(cs, gather(shadows.origin, visible), gather(shadows.direction, visible),
+                                             shadows.t_max.take(visible), shadows.media_mask.take(visible))
+    scatter_add(radiance, shadows.slot.take(visible), contribution)
 
 
 def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed):
@@ -422,15 +394,8 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
     """Stage 9: paths continue from their hit points; absorbed paths end, and
     so do paths that have used ``max_depth`` segments (they contribute
     nothing more); the survivors are compacted."""
-    return _advance(live, surface.point, direction, absorbed, max_depth)
-
-
-def _advance(live: PathBatch, point, direction, absorbed, max_depth: int) -> PathBatch:
-    live.origin = point
+    live.origin = surface.point
     live.direction = direction
-    if live.vertex is not None:
-        live.vertex = point
-        live.crossings = np.zeros(len(live), dtype=np.int32)
     live.depth += 1
     alive = ~absorbed & (live.depth < max_depth)
     if not alive.all():
@@ -440,65 +405,120 @@ def _advance(live: PathBatch, point, direction, absorbed, max_depth: int) -> Pat
 
 # -- participating media (wavefront.media) ----------------------------------------
 
-def travel_media(cs: CompiledScene, live: PathBatch, hits):
-    """Stage 2b (scenes with media): free flight and boundary crossings.
+def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
+    """Visit the pieces of the segments ``origin + t direction``, ``0 <= t <
+    t_end``, between the invisible media boundaries they cross, in order.
 
-    A path inside a medium draws the distance to its next interaction,
-    ``-ln(1 - u) / density`` (analog sampling: the probability of flying past
-    a distance is the transmittance, so neither outcome reweights the
-    throughput, and light reached through the medium needs no transmittance
-    factor).  If it is nearer than the surface hit, the path scatters in the
-    medium there.  Otherwise a path whose hit is an invisible boundary crosses
-    it: its media mask changes and it moves onto the boundary, to go on in
-    the same direction next iteration without spending a segment of
-    ``max_depth`` (at most ``CROSSINGS_PER_SEGMENT`` times between vertices).
+    For each piece, ``visit(row, start, stop, medium, piece)`` gets the rows
+    (indices into the segments) still walking, where their current pieces
+    start and stop along the segments, the medium each is in and the piece's
+    number (boundaries crossed so far), and returns which of those rows end
+    there (a path that scattered).  Every other row whose piece ended on a
+    boundary crosses it (its bit in ``mask``, updated in place, is set on
+    entering and cleared on leaving) and goes on.  Distances are measured from
+    ``origin``: a path's hit was found from its vertex, and a restart on a
+    boundary only looks for the next boundary.  Returns the rows that would
+    cross more than ``CROSSINGS_PER_SEGMENT - 1`` boundaries (unvisited past
+    that: rounding trouble, not light).
+    """
+    row = np.arange(t_end.shape[0])
+    start = np.zeros(row.size, dtype=np.float64)
+    back = np.zeros(row.size, dtype=np.float64)  # where the boundary query starts, along the segment
+    for piece in range(CROSSINGS_PER_SEGMENT):
+        end = t_end.take(row).astype(np.float64)
+        o, d = gather(origin, row), gather(direction, row)
+        if piece:  # restart just before the boundary crossed (see RESTART_BACKOFF)
+            back = start - RESTART_BACKOFF
+            o = o + back.astype(o.dtype) * d
+        if media.boundaries is not None:
+            hits = media.boundaries.intersect(o, d, (end - back).astype(o.dtype))
+            crossing = hits.primitive_idx >= 0
+            stop = np.where(crossing, back + hits.t, end)
+        else:
+            crossing, stop = np.zeros(row.size, dtype=bool), end
+        # No closed boundary reaches infinity: a piece that does is in no
+        # medium, whatever a crossing missed by rounding left in the mask.
+        unbounded = row.take(np.flatnonzero(stop == np.inf))
+        mask[unbounded] = 0
+        ended = visit(row, start, stop, current_medium(mask.take(row)), piece)
+        go = np.flatnonzero(crossing & ~ended)
+        if go.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        surface = media.boundaries.surface(gather(o, go), gather(d, go), hits.t.take(go), hits.primitive_idx.take(go))
+        row, start = row.take(go), stop.take(go)
+        mask[row] = cross(mask.take(row), surface.material_idx, surface.front_face)  # a boundary's material: its medium
+    return row
+
+
+def travel_media(cs: CompiledScene, live: PathBatch, hits):
+    """Stage 3a (scenes with media): free flight between each path's vertex
+    and its hit.
+
+    In every piece of the segment inside a medium, the path draws the
+    distance to its next interaction, ``-ln(1 - u) / density`` (analog
+    sampling: the probability of flying past a distance is the
+    transmittance, so neither outcome reweights the throughput, and light
+    reached through the medium needs no transmittance factor).  If that falls
+    within the piece, the path scatters in the medium there; else it crosses
+    the boundary ending the piece (its media mask changes) or reaches its
+    hit.  Crossings spend no segment of ``max_depth``; a path that would make
+    more than ``CROSSINGS_PER_SEGMENT - 1`` ends (it contributes nothing more).
 
     Returns
     -------
-    (paths that reached a surface or escaped, their hits, paths scattering in
-    a medium, the points ``(3, K)`` where they scatter, paths that crossed)
+    (paths that reach their hit or escape, their hits, paths that scatter in
+    a medium, the points ``(3, K)`` where they do)
     """
     media = cs.media
     n = len(live)
-    t_hit, prim = hits.t, hits.primitive_idx
-    medium = current_medium(live.media_mask)
-    inside = np.flatnonzero(medium >= 0)
-    scatters = np.zeros(n, dtype=bool)
-    t_scatter = np.zeros(0)
-    if inside.size:
-        u = uniform_pairs_at(live.state.take(inside),
-                             medium_dimension(live.depth.take(inside), live.crossings.take(inside)))[0]
-        with np.errstate(divide="ignore"):  # density 0: an infinite flight, the medium is not there
-            t_free = -np.log1p(-u) / media.density.take(medium.take(inside))
-        near = np.flatnonzero(t_free < t_hit.take(inside))
-        scatters[inside.take(near)] = True
-        t_scatter = t_free.take(near)
-    boundary = np.where(prim >= 0, media.crossing_of.take(np.maximum(prim, 0)), -1)
-    crosses = ~scatters & (boundary >= 0)
+    t_scatter = np.full(n, np.inf)
 
-    scatter_idx = np.flatnonzero(scatters)
-    in_medium = live.take(scatter_idx)
-    point = in_medium.origin + t_scatter.astype(cs.dtype) * in_medium.direction
+    def free_flight(row, start, stop, medium, piece):
+        ended = np.zeros(row.size, dtype=bool)
+        inside = np.flatnonzero(medium >= 0)
+        if inside.size:
+            rows = row.take(inside)
+            u = uniform_pairs_at(live.state.take(rows), medium_dimension(live.depth.take(rows), piece))[0]
+            with np.errstate(divide="ignore"):  # density 0: an infinite flight, as if the medium were not there
+                t = start.take(inside) - np.log1p(-u) / media.density.take(medium.take(inside))
+            near = np.flatnonzero(t < stop.take(inside))
+            t_scatter[rows.take(near)] = t.take(near)
+            ended[inside.take(near)] = True
+        return ended
 
-    cross_idx = np.flatnonzero(crosses)
-    crossed = live.take(cross_idx)
-    if cross_idx.size:
-        surface = cs.shapes.surface(crossed.origin, crossed.direction, t_hit.take(cross_idx), prim.take(cross_idx))
-        crossed.origin = surface.point
-        crossed.media_mask = cross(crossed.media_mask, boundary.take(cross_idx), surface.front_face)
-        crossed.crossings = crossed.crossings + 1
-        stuck = crossed.crossings >= CROSSINGS_PER_SEGMENT
-        if stuck.any():
-            crossed = crossed.take(np.flatnonzero(~stuck))
+    mask = live.media_mask.copy()
+    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight)
+    live.media_mask = mask
+    scatters = t_scatter < np.inf
+    in_idx = np.flatnonzero(scatters)
+    in_medium = live.take(in_idx)
+    point = in_medium.origin + t_scatter.take(in_idx).astype(cs.dtype) * in_medium.direction
+    keep = ~scatters
+    keep[lost] = False
+    if not keep.all():
+        rest = np.flatnonzero(keep)
+        live, hits = live.take(rest), Hits(hits.t.take(rest), hits.primitive_idx.take(rest))
+    return live, hits, in_medium, point
 
-    rest = np.flatnonzero(~scatters & ~crosses)
-    if rest.size < n:
-        live, hits = live.take(rest), Hits(t_hit.take(rest), prim.take(rest))
-    return live, hits, in_medium, point, crossed
+
+def shadow_transmittance(cs: CompiledScene, origin, direction, t_max, mask) -> np.ndarray:
+    """``(S,)`` fraction of light that crosses the media along unoccluded
+    shadow rays: the product of ``exp(-density * length)`` over the pieces
+    between boundaries (0 for a ray with more crossings than allowed)."""
+    fraction = np.ones(t_max.shape[0])
+
+    def attenuate(row, start, stop, medium, piece):
+        inside = np.flatnonzero(medium >= 0)
+        fraction[row.take(inside)] *= transmittance(cs.media.density.take(medium.take(inside)),
+                                                    stop.take(inside) - start.take(inside))
+        return np.zeros(row.size, dtype=bool)
+
+    fraction[walk_boundaries(cs.media, origin, direction, t_max, mask.copy(), attenuate)] = 0.0
+    return fraction
 
 
 def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radiance, stats: TraceStats) -> PathBatch:
-    """Stages 5-9 for vertices in media: a light sample (shadow rays
+    """Stages 5-9 for vertices in media: a light sample (its shadow ray
     attenuated by transmittance), then the isotropic phase function's sample
     (uniform on the sphere, pdf ``1 / (4 pi)``, so the throughput is
     multiplied by the albedo alone), roulette, and the next segment.  A black
@@ -517,7 +537,11 @@ def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radian
     live.specular = np.zeros(len(live), dtype=bool)
     if settings.russian_roulette is not None:
         absorbed = russian_roulette(live, absorbed, settings.russian_roulette.depth)
-    return _advance(live, point, direction, absorbed, settings.depth)
+    live.origin = point
+    live.direction = direction
+    live.depth += 1
+    alive = ~absorbed & (live.depth < settings.depth)
+    return live if alive.all() else live.take(np.flatnonzero(alive))
 
 
 def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, albedo, absorbed,

@@ -35,7 +35,7 @@ from .background import Background, Sky, Solid
 from .camera import Camera
 from .geometry import Sphere, position, precision_for
 from .lights import EmitterTable
-from .materials import Dielectric, Emissive, Interface, Lambertian, Material, MaterialTable, Metal, Phong
+from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
 from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, contains
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
@@ -351,12 +351,10 @@ class CompiledScene:
         dtype = precision_of(scene, bounds)
         names = list(scene.materials)
         index = {name: i for i, name in enumerate(names)}
-        materials = [scene.materials[n] for n in names]
-        if scene.media:  # one more row, past the scene's: what boundary primitives are made of
-            materials, names = materials + [Interface()], names + ["<medium boundary>"]
-        table = MaterialTable.build(materials, names, dtype)
+        table = MaterialTable.build([scene.materials[n] for n in names], names, dtype)
         extent = scene_extent(scene, bounds)
-        primitives, media = compile_shapes(scene, index, dtype, extent, with_media=True)
+        primitives = compile_shapes(scene, index, dtype, extent)
+        media = compile_media(scene, primitives, extent)
         emitters = EmitterTable.build(primitives, table) if scene.render.integrator == "path" else None
         shapes = build_intersector(primitives, extent)
         nl = len(scene.lights)
@@ -365,26 +363,13 @@ class CompiledScene:
         return cls(scene, shapes, table, light_position, light_color, dtype, emitters, media)
 
 
-def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float, with_media: bool = False):
-    """Every shape of ``scene`` in world space (each transform applied once, here) as one :class:`Primitives`.
-
-    Media boundaries are appended to their kind's set, after the scene's own
-    primitives (so a scene without media numbers its primitives as before).
-    With ``with_media``, returns ``(primitives, MediumTable or None)``.
-    """
+def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) -> Primitives:
+    """Every shape of ``scene`` in world space (each transform applied once, here) as one :class:`Primitives`."""
     def material(shape):
         return shape.material if isinstance(shape.material, int) else index[shape.material]
 
-    boundaries = _Boundaries(scene, len(scene.materials))
-    sphere_center, sphere_radius = _world_spheres(scene.spheres)
-    sphere_material = np.array([material(s) for s in scene.spheres], dtype=np.int32)
-    sphere_center, sphere_radius, sphere_material = boundaries.add_spheres(sphere_center, sphere_radius,
-                                                                           sphere_material)
-    spheres = SphereSet(sphere_center, sphere_radius, sphere_material, dtype)
-    quad_rows = np.array([np.concatenate(q.world()) for q in scene.quads], dtype=np.float64).reshape(-1, 9)
-    quad_material = np.array([material(q) for q in scene.quads], dtype=np.int32)
-    quad_rows, quad_material = boundaries.add_rows("quads", quad_rows, quad_material)
-    quads = QuadSet(quad_rows[:, 0:3].T, quad_rows[:, 3:6].T, quad_rows[:, 6:9].T, quad_material, dtype, extent)
+    spheres = SphereSet.build(scene.spheres, [material(s) for s in scene.spheres], dtype)
+    quads = QuadSet.build(scene.quads, [material(q) for q in scene.quads], dtype, extent)
     # loose triangles and every mesh's triangles form one triangle set
     parts, materials = [], []
     if scene.triangles:
@@ -397,14 +382,6 @@ def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float, wi
     material_idx = np.concatenate(materials) if materials else np.zeros(0, np.int32)
     joined = {key: np.concatenate([p[key] for p in parts], axis=-1) if parts else np.zeros((3, 0))
               for key in ("v0", "v1", "v2")}
-    if boundaries.has("triangles"):
-        rows = np.concatenate((joined["v0"], joined["v1"], joined["v2"])).T
-        rows, material_idx = boundaries.add_rows("triangles", rows, material_idx)
-        first = joined["v0"].shape[1]
-        joined = {key: rows[:, 3 * k:3 * k + 3].T for k, key in enumerate(("v0", "v1", "v2"))}
-        if rows.shape[0] > first:  # boundary triangles are flat, with barycentric uv (never shaded)
-            parts.append({key: joined[key][:, first:] for key in ("v0", "v1", "v2")}
-                         | dict(vertex_normal=None, vertex_uv=None))
     normals = uvs = None
     if any(p["vertex_normal"] is not None for p in parts):  # flat triangles repeat their face normal
         normals = np.concatenate([p["vertex_normal"] if p["vertex_normal"] is not None else
@@ -414,27 +391,77 @@ def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float, wi
         uvs = np.concatenate([p["vertex_uv"] if p["vertex_uv"] is not None else
                               np.broadcast_to(corners, (3, 2, p["v0"].shape[1])) for p in parts], axis=-1)
     triangles = TriangleSet(joined["v0"], joined["v1"], joined["v2"], material_idx, dtype, extent, normals, uvs)
-    primitives = Primitives([spheres, quads, triangles], dtype, exact_pad(dtype, extent))
-    if not with_media:
-        return primitives
-    return primitives, boundaries.table(primitives)
+    return Primitives([spheres, quads, triangles], dtype, exact_pad(dtype, extent))
 
 
-def _world_spheres(spheres: list[Sphere]) -> tuple[np.ndarray, np.ndarray]:
-    """World-space ``center (3, M)`` and ``radius (M,)`` float64 (as ``SphereSet.build``)."""
-    from .shapes.sphere import world_sphere
+def compile_media(scene: Scene, primitives: Primitives, extent: float) -> MediumTable | None:
+    """The scene's media as a :class:`MediumTable` (None without media).
 
-    center, radius = np.zeros((3, len(spheres))), np.zeros(len(spheres))
-    for i, s in enumerate(spheres):  # per scene object, at compile time
-        center[:, i], radius[i] = world_sphere(s)
-    return center, radius
+    Boundaries are primitives of their own, in their own intersector: the
+    scene's intersection is untouched by them (so a ray's hit is found from
+    its vertex exactly as without media), and the path integrator walks the
+    boundaries between a vertex and its hit.  A boundary primitive identical
+    to a visible one is not duplicated: the visible one bounds the medium
+    (see :mod:`wavefront.media`).  A boundary primitive's ``material_idx`` is
+    its medium.
+    """
+    if not scene.media:
+        return None
+    dtype = primitives.dtype
+    visible = {type(k).__name__: k for k in primitives.kinds}
+    offset = {type(k).__name__: int(o) for k, o in zip(primitives.kinds, primitives.offsets)}
+    interface = np.full(len(primitives), -1, dtype=np.int32)
+    # per kind: (medium, rows (B, K) compared with the visible kind's fields, rows (B, K') it is built from)
+    rows = {"SphereSet": [], "QuadSet": [], "TriangleSet": []}
+    for m, medium in enumerate(scene.media):
+        kind, value = boundary_primitives(medium)
+        if kind == "sphere":
+            center, radius = value
+            sphere = np.append(center, radius)[None, :]
+            rows["SphereSet"].append((m, sphere, sphere))
+        elif kind == "quads":
+            quads = np.array([np.concatenate(q.world()) for q in value])
+            rows["QuadSet"].append((m, quads, quads))
+        else:
+            v0, v1, v2 = value["v0"], value["v1"], value["v2"]
+            rows["TriangleSet"].append((m, np.concatenate((v0, v1 - v0, v2 - v0)).T, np.concatenate((v0, v1, v2)).T))
+    fields = {"SphereSet": lambda k: np.concatenate((k.center, k.radius[None, :])),
+              "QuadSet": lambda k: np.concatenate((k.corner, k.u, k.v)),
+              "TriangleSet": lambda k: np.concatenate((k.v0, k.e1, k.e2))}
+    kinds = []
+    for name, parts in rows.items():
+        if not parts:
+            continue
+        have = fields[name](visible[name]).T.astype(np.float64) if name in visible else np.zeros((0, 1))
+        keep, medium_idx = [], []
+        for m, wanted, build in parts:
+            same = _matching_rows(have, wanted)
+            interface[offset.get(name, 0) + same[same >= 0]] = m
+            keep.append(build[same < 0])
+            medium_idx.append(np.full(keep[-1].shape[0], m, dtype=np.int32))
+        r, medium_idx = np.concatenate(keep), np.concatenate(medium_idx)
+        if name == "SphereSet":
+            kinds.append(SphereSet(r[:, :3].T, r[:, 3], medium_idx, dtype))
+        elif name == "QuadSet":
+            kinds.append(QuadSet(r[:, 0:3].T, r[:, 3:6].T, r[:, 6:9].T, medium_idx, dtype, extent))
+        else:
+            kinds.append(TriangleSet(r[:, 0:3].T, r[:, 3:6].T, r[:, 6:9].T, medium_idx, dtype, extent))
+    from .accel import build_intersector
+
+    boundaries = Primitives(kinds, dtype, exact_pad(dtype, extent))
+    look_from = scene.camera.look_from
+    camera_mask = sum(1 << m for m, medium in enumerate(scene.media) if contains(medium, look_from))
+    return MediumTable(density=np.array([m.density for m in scene.media], dtype=np.float64),
+                       albedo=np.array([m.albedo for m in scene.media], dtype=np.float64).reshape(-1, 3).T.copy(),
+                       boundaries=build_intersector(boundaries, extent) if len(boundaries) else None,
+                       interface_of=interface, camera_mask=np.uint64(camera_mask))
 
 
 def _matching_rows(visible: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     """For each row of ``wanted (B, K)``, the index of an identical row of
-    ``visible (M, K)`` (both float64), or -1; sorted byte keys, no Python loop."""
+    ``visible (M, K)`` (both float64), or -1: sorted byte keys, no Python loop."""
     found = np.full(wanted.shape[0], -1, dtype=np.int64)
-    if visible.shape[0] == 0 or wanted.shape[0] == 0:
+    if visible.shape[0] == 0 or wanted.shape[0] == 0 or visible.shape[1] != wanted.shape[1]:
         return found
     key = np.dtype((np.void, 8 * visible.shape[1]))
     have = np.ascontiguousarray(visible + 0.0).view(key).ravel()  # + 0.0: -0.0 and 0.0 get the same bytes
@@ -444,72 +471,6 @@ def _matching_rows(visible: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     hit = have[order[pos]] == want
     found[hit] = order[pos[hit]]
     return found
-
-
-class _Boundaries:
-    """Media boundaries on their way into the scene's primitive sets (see
-    :mod:`wavefront.media`): each kind's boundary primitives are appended to
-    the kind, except those identical to a visible primitive, which becomes
-    the boundary itself (an interface)."""
-
-    def __init__(self, scene: Scene, interface_material: int):
-        self.material = interface_material
-        self.scene = scene
-        self.parts = {"spheres": [], "quads": [], "triangles": []}  # (medium, rows (B, K))
-        for m, medium in enumerate(scene.media):
-            kind, value = boundary_primitives(medium)
-            if kind == "sphere":
-                center, radius = value
-                self.parts["spheres"].append((m, np.append(center, radius)[None, :]))
-            elif kind == "quads":
-                self.parts["quads"].append((m, np.array([np.concatenate(q.world()) for q in value])))
-            else:
-                self.parts["triangles"].append((m, np.concatenate((value["v0"], value["v1"], value["v2"])).T))
-        # per kind: (M_kind,) medium of each primitive, invisible boundaries and interfaces apart
-        self.crossing, self.interface = {}, {}
-
-    def has(self, kind: str) -> bool:
-        return bool(self.parts[kind])
-
-    def add_rows(self, kind: str, rows: np.ndarray, material_idx: np.ndarray):
-        """``rows (M, K)`` and ``material_idx (M,)`` with the kind's boundary rows appended."""
-        m = rows.shape[0]
-        crossing, interface = [np.full(m, -1, dtype=np.int32)], np.full(m, -1, dtype=np.int32)
-        new_rows, new_material = [rows], [material_idx]
-        for medium, wanted in self.parts[kind]:
-            same = _matching_rows(rows, wanted)
-            interface[same[same >= 0]] = medium
-            extra = wanted[same < 0]
-            new_rows.append(extra)
-            new_material.append(np.full(extra.shape[0], self.material, dtype=np.int32))
-            crossing.append(np.full(extra.shape[0], medium, dtype=np.int32))
-        self.crossing[kind] = np.concatenate(crossing)
-        self.interface[kind] = np.concatenate((interface, np.full(self.crossing[kind].size - m, -1, np.int32)))
-        return np.concatenate(new_rows), np.concatenate(new_material)
-
-    def add_spheres(self, center, radius, material_idx):
-        rows, material_idx = self.add_rows("spheres", np.concatenate((center, radius[None, :])).T, material_idx)
-        return rows[:, :3].T, rows[:, 3], material_idx
-
-    def table(self, primitives: Primitives) -> MediumTable | None:
-        media = self.scene.media
-        if not media:
-            return None
-        crossing = np.concatenate([self.crossing.get(k, np.full(n, -1, np.int32)) for k, n in
-                                   zip(("spheres", "quads", "triangles"), self._sizes(primitives))])
-        interface = np.concatenate([self.interface.get(k, np.full(n, -1, np.int32)) for k, n in
-                                    zip(("spheres", "quads", "triangles"), self._sizes(primitives))])
-        look_from = self.scene.camera.look_from
-        camera_mask = sum((1 << m) for m, medium in enumerate(media) if contains(medium, look_from))
-        return MediumTable(density=np.array([m.density for m in media], dtype=np.float64),
-                           albedo=np.array([m.albedo for m in media], dtype=np.float64).reshape(-1, 3).T.copy(),
-                           crossing_of=crossing, interface_of=interface, camera_mask=np.uint64(camera_mask))
-
-    @staticmethod
-    def _sizes(primitives: Primitives):
-        """Primitives per kind (spheres, quads, triangles), empty kinds included."""
-        sizes = {type(k).__name__: len(k) for k in primitives.kinds}
-        return [sizes.get(name, 0) for name in ("SphereSet", "QuadSet", "TriangleSet")]
 
 
 def _face_normal(part: dict) -> np.ndarray:
