@@ -223,6 +223,23 @@ def test_a_camera_inside_a_mesh_of_fog_matches_an_independent_estimate(tmp_path)
     assert abs(z_score(image, expected * 1.06)) > 5  # the test can tell 6 %
 
 
+@pytest.mark.parametrize("inner_last", [True, False])
+def test_overlapping_media_the_one_listed_last_wins(inner_last):
+    """Absorbing fog of density 0.2 in a ball of radius 2 and of density 1 in
+    a ball of radius 0.5 at its centre, seen through both centres: listed
+    last, the inner ball is a denser core (the ray leaves it back into the
+    outer fog); listed first, the outer fog wins everywhere it is, and the
+    core is not there."""
+    outer, inner = Medium(Sphere((0, 0, 0), 2.0, 0), 0.2, (0, 0, 0)), Medium(Sphere((0, 0, 0), 0.5, 0), 1.0, (0, 0, 0))
+    scene = background_scene([outer, inner] if inner_last else [inner, outer], spp=64,
+                             camera=Camera(look_from=(0, 0, 10), look_at=(0, 0, 0), vfov=0.5))
+    optical_depth = 0.2 * 3.0 + 1.0 * 1.0 if inner_last else 0.2 * 4.0
+    image = rendered(scene)
+    assert abs(z_score(image, math.exp(-optical_depth))) < 4.5
+    other = 0.2 * 4.0 if inner_last else 0.2 * 3.0 + 1.0 * 1.0
+    assert abs(z_score(image, math.exp(-other))) > 10
+
+
 def test_fog_inside_a_glass_ball_is_entered_through_the_glass():
     """RTOW's final scene fills a glass ball with fog using the same sphere for
     both: the visible ball becomes the boundary, and refraction enters it.

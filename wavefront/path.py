@@ -7,11 +7,11 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
    few deep paths never costs a near-empty NumPy call per bounce);
 2. **intersect** every path with every shape (brute force or the BVH), and
    describe each hit in one :class:`~wavefront.shapes.SurfaceHits`;
+   **media** (scenes with participating media, :func:`travel_media`): free
+   flight through the media between each path's vertex and its hit,
+   crossing invisible boundaries; paths that scatter in a medium take
+   stages 5-9 there (:func:`scatter_in_media`) and rejoin at 9;
 3. **escaped** paths add ``throughput * background`` and end;
-   **media** (scenes with participating media): free flight through the
-   media between a path's vertex and its hit, crossing invisible
-   boundaries; paths that scatter in a medium take stages 5-9 there
-   (:func:`scatter_in_media`);
 4. **emitted**: paths that hit an emitter end; those that struck its front
    side add ``throughput * color``;
 5. **sample lights** (``render.light_sampling``): at every diffuse hit,
@@ -25,7 +25,16 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
 9. **compact** the survivors.
 
 A path ends in one of the book's three ways: it hits a light, escapes to the
-background, or reaches the depth limit (contributing nothing more).
+background, or reaches the depth limit (contributing nothing more); in a
+scene with media also where a black medium absorbs it.
+
+Participating media (:mod:`wavefront.media`): a vertex in a medium is lit
+like a diffuse one, the isotropic phase function ``1 / (4 pi)`` standing in
+for the BSDF and its pdf, and every shadow ray is attenuated by the
+transmittance of the media it crosses.  Free-flight distances are sampled
+analogly (with probability the transmittance), so a light reached through
+fog carries no transmittance factor and its MIS weight compares the same two
+pdfs as on a surface.
 
 Next-event estimation with multiple importance sampling (Veach 1997, ch. 9;
 pbrt-v4's wavefront ``SampleDirect``/``TraceShadowRays``; Mitsuba's ``path``)
@@ -451,7 +460,7 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
 
 
 def travel_media(cs: CompiledScene, live: PathBatch, hits):
-    """Stage 3a (scenes with media): free flight between each path's vertex
+    """Stage 2b (scenes with media): free flight between each path's vertex
     and its hit.
 
     In every piece of the segment inside a medium, the path draws the
