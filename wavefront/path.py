@@ -74,6 +74,11 @@ REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
 # lies T_MIN - 1e-6 ahead, inside T_MIN, and is skipped (were rounding to find
 # it again, crossing it again from the same side changes nothing).
 RESTART_BACKOFF = T_MIN * (1.0 - 1e-3)
+# A boundary less than this before a segment's hit counts as lying on the
+# surface, which wins: fog resting on a floor (a box boundary's bottom face
+# in the floor's plane) is left only through its sides, whatever the rounding
+# of a distance measured from a restart point.  The same 1e-6 as above.
+COINCIDENT = T_MIN - RESTART_BACKOFF
 # A shadow ray stops this fraction short of the light's surface, so that it
 # cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
 # the light than that is missed, 1e-4 of the distance.
@@ -440,7 +445,7 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
             back = start - RESTART_BACKOFF
             o = o + back.astype(o.dtype) * d
         if media.boundaries is not None:
-            hits = media.boundaries.intersect(o, d, (end - back).astype(o.dtype))
+            hits = media.boundaries.intersect(o, d, (end - back - COINCIDENT).astype(o.dtype))
             crossing = hits.primitive_idx >= 0
             stop = np.where(crossing, back + hits.t, end)
         else:
