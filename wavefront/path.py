@@ -65,14 +65,15 @@ from .shapes import Hits
 from .vecmath import dot, gather, scatter, scatter_add
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
-# After crossing a medium boundary, the search for the next one restarts this
-# far before the crossing: a boundary closer than T_MIN past the restart
-# point is skipped, so restarting on the crossing itself missed any other
-# boundary within T_MIN beyond it (where two media's boundaries meet: one
-# sample in a thousand lost its way in a unit-sized scene).  Now only those
-# within T_MIN - RESTART_BACKOFF (1e-6) are missed; the boundary just crossed
-# lies T_MIN - 1e-6 ahead, inside T_MIN, and is skipped (were rounding to find
-# it again, crossing it again from the same side changes nothing).
+# The search for media boundaries along a piece of a segment starts this far
+# before the piece (a vertex, or the boundary just crossed): a boundary
+# closer than T_MIN past a ray's origin is skipped, so starting on the
+# crossing itself missed any other boundary within T_MIN beyond it (where two
+# media's boundaries meet: one sample in a thousand lost its way in a
+# unit-sized scene).  Now only those within T_MIN - RESTART_BACKOFF (1e-6)
+# are missed; the boundary just crossed (or a surface's own boundary at a
+# vertex) lies within T_MIN and is skipped (were rounding to find it again,
+# crossing it again from the same side changes nothing).
 RESTART_BACKOFF = T_MIN * (1.0 - 1e-3)
 # A boundary less than this before a segment's hit counts as lying on the
 # surface, which wins: fog resting on a floor (a box boundary's bottom face
@@ -437,13 +438,14 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
     """
     row = np.arange(t_end.shape[0])
     start = np.zeros(row.size, dtype=np.float64)
-    back = np.zeros(row.size, dtype=np.float64)  # where the boundary query starts, along the segment
     for piece in range(CROSSINGS_PER_SEGMENT):
         end = t_end.take(row).astype(np.float64)
-        o, d = gather(origin, row), gather(direction, row)
-        if piece:  # restart just before the boundary crossed (see RESTART_BACKOFF)
-            back = start - RESTART_BACKOFF
-            o = o + back.astype(o.dtype) * d
+        d = gather(direction, row)
+        # the boundary query starts just before the piece (see RESTART_BACKOFF),
+        # so that a boundary right past a crossing, or past a vertex in a
+        # medium, is not skipped as T_MIN skips surfaces at a ray's origin
+        back = start - RESTART_BACKOFF
+        o = gather(origin, row) + back.astype(d.dtype) * d
         if media.boundaries is not None:
             hits = media.boundaries.intersect(o, d, (end - back - COINCIDENT).astype(o.dtype))
             crossing = hits.primitive_idx >= 0
