@@ -102,6 +102,25 @@ def test_point_in_boundary_for_each_kind(tmp_path):
             pytest.approx(1.0)
 
 
+@settings(max_examples=100, deadline=None)
+@given(point=st.lists(st.floats(-3, 3), min_size=3, max_size=3),
+       axis=st.lists(st.floats(-1, 1), min_size=3, max_size=3).filter(lambda a: sum(x * x for x in a) > 0.01),
+       angle=st.floats(-180, 180))
+def test_a_box_and_the_same_box_as_a_mesh_agree_on_what_is_inside(point, axis, angle):
+    """Two independent point-in-boundary tests: the box's (in its object
+    space) and the winding number of its twelve triangles."""
+    steps = [{"rotate": {"axis": axis, "angle": angle}}, {"translate": [0.5, -0.2, 0.1]}]
+    box = Box((-1, -0.5, -2), (1.5, 1, 1), 0, steps)
+    triangles = trimesh.creation.box(bounds=[(-1, -0.5, -2), (1.5, 1, 1)])
+    mesh = Mesh(np.asarray(triangles.vertices), np.asarray(triangles.faces), 0, transform=box.transform)
+    p = np.array(point)
+    w = winding_number(wavefront.media.mesh_triangles(mesh), p)
+    if abs(w - 0.5) > 1e-6:  # not on the surface
+        assert contains(Medium(box, 1.0), p) == (w > 0.5)
+        assert contains(Medium(mesh, 1.0), p) == (w > 0.5)
+        assert min(abs(w), abs(w - 1)) < 1e-9  # 0 or 1: closed and outward
+
+
 def test_an_open_mesh_is_refused(tmp_path):
     mesh = Mesh.read(box_mesh_file(tmp_path, open_=True), 0)
     with pytest.raises(SceneError, match="boundary.mesh.file.*not closed"):
