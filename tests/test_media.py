@@ -21,6 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import wavefront.path
+import wavefront.sampling
 import wavefront.units
 from wavefront import (Box, Camera, Dielectric, Emissive, Lambertian, Medium, Metal, Quad, RenderSettings, Scene,
                        SceneError, Solid, Sphere, load_scene, render, render_scene)
@@ -389,6 +390,19 @@ def test_cornell_smoke_is_book_2s_scene(smoke, smoke_image):
     assert len(compiled.media.boundaries) == 12 and compiled.media.camera_mask == 0
     assert len(compiled.shapes) == 6 and (compiled.media.interface_of < 0).all()  # the walls and the lamp
     assert np.isfinite(smoke_image).all() and smoke_image.mean() > 0.05
+
+
+def test_culling_by_the_boundaries_box_changes_no_sample(smoke):
+    """Rays that miss the box around every boundary skip the boundaries'
+    intersector; with an infinite box every ray asks it, and every sample is
+    the same, bit for bit."""
+    scene = smoke.replace(media=smoke.media + [Medium(Sphere((400, 400, 300), 60, 0), 0.02, (0.5, 0.7, 0.9))])
+    job = wavefront.units.Job([wavefront.units.Unit(0, 0, 0, 20, 20, 0, 3)], 20, 3)
+    key = wavefront.sampling.scene_key(1)
+    compiled = scene.compile()
+    culled = wavefront.path.trace_paths(compiled, job, key, 4096)
+    compiled.media.bounds = (np.full((3, 1), -np.inf), np.full((3, 1), np.inf))
+    np.testing.assert_array_equal(wavefront.path.trace_paths(compiled, job, key, 4096), culled)
 
 
 def test_the_checkpoint_fingerprint_covers_media(smoke):

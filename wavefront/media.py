@@ -206,6 +206,8 @@ class MediumTable:
     boundaries: object | None  # an Intersector over the boundary primitives
     interface_of: np.ndarray  # (M,) int32, per scene primitive
     camera_mask: np.uint64  # the media containing the camera
+    # a box around every boundary primitive, padded: lo, hi (3, 1) float64
+    bounds: tuple[np.ndarray, np.ndarray] = (np.full((3, 1), -np.inf), np.full((3, 1), np.inf))
 
     def __len__(self) -> int:
         return self.density.shape[0]

@@ -447,7 +447,7 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
         back = start - RESTART_BACKOFF
         o = gather(origin, row) + back.astype(d.dtype) * d
         if media.boundaries is not None:
-            hits = media.boundaries.intersect(o, d, (end - back - COINCIDENT).astype(o.dtype))
+            hits = boundary_hits(media, o, d, (end - back - COINCIDENT).astype(o.dtype))
             crossing = hits.primitive_idx >= 0
             stop = np.where(crossing, back + hits.t, end)
         else:
@@ -464,6 +464,33 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
         row, start = row.take(go), stop.take(go)
         mask[row] = cross(mask.take(row), surface.material_idx, surface.front_face)  # a boundary's material: its medium
     return row
+
+
+def boundary_hits(media, origin, direction, t_max) -> Hits:
+    """The nearest boundary hit of each ray before ``t_max``, asking the
+    boundaries' intersector only about rays whose segment meets the box
+    around every boundary (a slab test, padded; rays that pass it get the
+    intersector's exact answer, so the cull changes no hit)."""
+    n = origin.shape[1]
+    lo, hi = media.bounds
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / direction.astype(np.float64)
+        t1 = (lo - origin) * inverse
+        t2 = (hi - origin) * inverse
+        # fmin/fmax skip the NaN of a ray lying in a slab's plane: that axis then culls nothing
+        near = np.fmax.reduce(np.fmin(t1, t2), axis=0)
+        far = np.fmin.reduce(np.fmax(t1, t2), axis=0)
+    meets = ~((near > far) | (far < 0.0) | (near > t_max))  # NaN comparisons are false: such rays are kept
+    if meets.all():
+        return media.boundaries.intersect(origin, direction, t_max)
+    t = np.full(n, np.inf, dtype=origin.dtype)
+    primitive = np.full(n, -1, dtype=np.int32)
+    idx = np.flatnonzero(meets)
+    if idx.size:
+        hits = media.boundaries.intersect(gather(origin, idx), gather(direction, idx),
+                                          np.broadcast_to(t_max, (n,)).take(idx))
+        t[idx], primitive[idx] = hits.t, hits.primitive_idx
+    return Hits(t, primitive)
 
 
 def travel_media(cs: CompiledScene, live: PathBatch, hits):

@@ -449,12 +449,18 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
     from .accel import build_intersector
 
     boundaries = Primitives(kinds, dtype, exact_pad(dtype, extent))
+    bounds = (np.full((3, 1), -np.inf), np.full((3, 1), np.inf))
+    if len(boundaries):
+        lo, hi = boundaries.bounds()
+        # far more than any hit's rounding (flat primitives accept hits up to exact_pad outside their box)
+        pad = 1e-6 * max(extent, 1.0) + 4 * exact_pad(np.float32, extent)
+        bounds = (lo.min(axis=1, keepdims=True) - pad, hi.max(axis=1, keepdims=True) + pad)
     look_from = scene.camera.look_from
     camera_mask = sum(1 << m for m, medium in enumerate(scene.media) if contains(medium, look_from))
     return MediumTable(density=np.array([m.density for m in scene.media], dtype=np.float64),
                        albedo=np.array([m.albedo for m in scene.media], dtype=np.float64).reshape(-1, 3).T.copy(),
                        boundaries=build_intersector(boundaries, extent) if len(boundaries) else None,
-                       interface_of=interface, camera_mask=np.uint64(camera_mask))
+                       interface_of=interface, camera_mask=np.uint64(camera_mask), bounds=bounds)
 
 
 def _matching_rows(visible: np.ndarray, wanted: np.ndarray) -> np.ndarray:
