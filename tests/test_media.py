@@ -151,7 +151,9 @@ def test_a_medium_of_density_zero_is_invisible():
     foggy = plain.replace(media=[Medium(Sphere((0.3, 0.6, 0.2), 0.9, 0), 0.0, (0.5, 0.5, 0.5)),
                                  Medium(Box((-3, -1, -3), (3, 3, 4), 0), 0.0)])  # holds the camera
     a, b = render(plain, workers=1), render(foggy, workers=1)
-    assert foggy.compile().media.camera_mask == 2
+    table = foggy.compile().media
+    assert table.medium_of_bit.tolist() == [1, 0]  # the box encloses more: bit 0
+    assert table.camera_mask == 1
     np.testing.assert_array_equal(a, b)
     # and a fog of some density is not invisible (the test can fail)
     thick = plain.replace(media=[dataclasses.replace(foggy.media[0], density=2.0)])
@@ -246,20 +248,30 @@ def test_a_camera_inside_a_mesh_of_fog_matches_an_independent_estimate(tmp_path)
 
 
 @pytest.mark.parametrize("inner_last", [True, False])
-def test_overlapping_media_the_one_listed_last_wins(inner_last):
+def test_overlapping_media_the_innermost_wins(inner_last):
     """Absorbing fog of density 0.2 in a ball of radius 2 and of density 1 in
-    a ball of radius 0.5 at its centre, seen through both centres: listed
-    last, the inner ball is a denser core (the ray leaves it back into the
-    outer fog); listed first, the outer fog wins everywhere it is, and the
-    core is not there."""
+    a ball of radius 0.5 at its centre, seen through both centres: in either
+    order the inner ball is a denser core, and the ray leaves it back into the
+    outer fog (RTOW's final scene lists its blue ball before the mist)."""
     outer, inner = Medium(Sphere((0, 0, 0), 2.0, 0), 0.2, (0, 0, 0)), Medium(Sphere((0, 0, 0), 0.5, 0), 1.0, (0, 0, 0))
     scene = background_scene([outer, inner] if inner_last else [inner, outer], spp=64,
                              camera=Camera(look_from=(0, 0, 10), look_at=(0, 0, 0), vfov=0.5))
-    optical_depth = 0.2 * 3.0 + 1.0 * 1.0 if inner_last else 0.2 * 4.0
     image = rendered(scene)
-    assert abs(z_score(image, math.exp(-optical_depth))) < 4.5
-    other = 0.2 * 4.0 if inner_last else 0.2 * 3.0 + 1.0 * 1.0
-    assert abs(z_score(image, math.exp(-other))) > 10
+    assert abs(z_score(image, math.exp(-(0.2 * 3.0 + 1.0 * 1.0)))) < 4.5
+    assert abs(z_score(image, math.exp(-0.2 * 4.0))) > 10  # the outer fog alone
+    assert abs(z_score(image, math.exp(-(0.2 * 4.0 + 1.0 * 1.0)))) > 10  # densities added
+
+
+def test_partly_overlapping_media_the_smaller_wins_the_overlap():
+    """Two absorbing slabs along the view, the thinner (smaller volume)
+    overlapping the thicker's far half: that half has the thinner's density."""
+    thick = Medium(Box((-100, -100, -5), (100, 100, -1), 0), 0.1, (0, 0, 0))  # z in [-5, -1], volume 160 000
+    thin = Medium(Box((-50, -50, -8), (50, 50, -3), 0), 0.4, (0, 0, 0))  # z in [-8, -3], volume 50 000
+    for media in ([thick, thin], [thin, thick]):
+        scene = background_scene(media, camera=Camera(look_from=(0, 0, 0), look_at=(0, 0, -1), vfov=2), spp=64)
+        image = rendered(scene)
+        assert abs(z_score(image, math.exp(-(0.1 * 2 + 0.4 * 5)))) < 4.5
+        assert abs(z_score(image, math.exp(-(0.1 * 4 + 0.4 * 3)))) > 10  # had the thicker won
 
 
 def test_fog_resting_on_a_floor_is_not_left_through_the_floor():

@@ -15,11 +15,14 @@ surface within ``T_MIN`` beyond it: fog resting on a floor let light leak
 through the floor at one sample in a few thousand.)  A path carries
 the set of media it is inside as a bit mask (medium ``i`` is bit ``i``);
 crossing a boundary's front (outer) side sets its bit, crossing its back
-side clears it.  **Overlapping media: the medium listed last wins.**  Where
-boundaries overlap, the medium a path is in is the highest-numbered one
-whose bit is set; the mask makes leaving an inner medium return to the one
-around it, and an overlap region consistently belongs to the later medium.
-Hence at most :data:`MAX_MEDIA` media.
+side clears it.  **Overlapping media: the innermost wins.**  Precisely, where
+boundaries overlap, a point belongs to the medium whose boundary encloses the
+smallest volume (a tie goes to the one listed last): bits are numbered by
+decreasing volume and a path is in the medium of its highest set bit.  Nested
+media (a blue ball of fog inside a thin mist, RTOW's final scene) therefore
+work in any order, leaving an inner medium returns a path to the one around
+it, and a partial overlap consistently belongs to the smaller medium.  Hence
+at most :data:`MAX_MEDIA` media.
 
 A scene sphere, quad or mesh triangle that coincides exactly with a
 boundary primitive (RTOW's final scene fills a glass ball with blue fog,
@@ -163,6 +166,19 @@ def boundary_primitives(medium: Medium):
     return "triangles", mesh_triangles(b)
 
 
+def boundary_volume(medium: Medium) -> float:
+    """The volume the boundary encloses, in world space (what orders media
+    for the innermost-wins rule)."""
+    b = medium.boundary
+    if isinstance(b, Sphere):
+        return 4.0 / 3.0 * math.pi * world_sphere(b)[1] ** 3
+    if isinstance(b, Box):
+        scale = 1.0 if b.transform is None else abs(float(np.linalg.det(b.transform.array[:3, :3])))
+        return float(np.prod(np.subtract(b.max, b.min))) * scale
+    t = mesh_triangles(b)  # divergence theorem: signed tetrahedra from the origin
+    return abs(float(np.einsum("ij,ij->", t["v0"], np.cross(t["v1"], t["v2"], axis=0)))) / 6.0
+
+
 def contains(medium: Medium, point) -> bool:
     """Whether ``point (3,)`` lies inside the medium's boundary."""
     p = np.asarray(point, dtype=np.float64)
@@ -194,6 +210,11 @@ def winding_number(triangles: dict, point: np.ndarray) -> float:
 class MediumTable:
     """A scene's media as arrays, built once when the scene is compiled.
 
+    Media are numbered here by their bit in a path's mask (largest volume
+    first, see the module docstring), not as listed: ``density``, ``albedo``,
+    the boundaries' ``material_idx``, ``interface_of`` and ``camera_mask`` all
+    use that number; ``medium_of_bit`` maps it back to the scene's list.
+
     ``boundaries`` intersects the invisible boundary primitives (their own
     brute force or BVH, apart from the scene's shapes; a hit's
     ``material_idx`` is its medium), None when every boundary is a visible
@@ -203,6 +224,7 @@ class MediumTable:
 
     density: np.ndarray  # (K,) float64
     albedo: np.ndarray  # (3, K) float64
+    medium_of_bit: np.ndarray  # (K,) int64: the scene's index of each bit's medium
     boundaries: object | None  # an Intersector over the boundary primitives
     interface_of: np.ndarray  # (M,) int32, per scene primitive
     camera_mask: np.uint64  # the media containing the camera

@@ -36,7 +36,7 @@ from .camera import Camera
 from .geometry import Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
-from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, contains
+from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, boundary_volume, contains
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
 from .validation import SceneError, color, describe, fail, instance, integer, source_of, string
@@ -402,18 +402,24 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
     its vertex exactly as without media), and the path integrator walks the
     boundaries between a vertex and its hit.  A boundary primitive identical
     to a visible one is not duplicated: the visible one bounds the medium
-    (see :mod:`wavefront.media`).  A boundary primitive's ``material_idx`` is
-    its medium.
+    (see :mod:`wavefront.media`).  Media are numbered by their bit in a
+    path's mask, largest volume first (the innermost wins); a boundary
+    primitive's ``material_idx`` is that number.
     """
     if not scene.media:
         return None
     dtype = primitives.dtype
+    volume = np.array([boundary_volume(m) for m in scene.media])
+    medium_of_bit = np.lexsort((np.arange(volume.size), -volume))  # ties: the one listed last gets the higher bit
+    bit_of = np.empty_like(medium_of_bit)
+    bit_of[medium_of_bit] = np.arange(volume.size)
     visible = {type(k).__name__: k for k in primitives.kinds}
     offset = {type(k).__name__: int(o) for k, o in zip(primitives.kinds, primitives.offsets)}
     interface = np.full(len(primitives), -1, dtype=np.int32)
     # per kind: (medium, rows (B, K) compared with the visible kind's fields, rows (B, K') it is built from)
     rows = {"SphereSet": [], "QuadSet": [], "TriangleSet": []}
-    for m, medium in enumerate(scene.media):
+    for listed, medium in enumerate(scene.media):
+        m = int(bit_of[listed])
         kind, value = boundary_primitives(medium)
         if kind == "sphere":
             center, radius = value
@@ -456,9 +462,11 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
         pad = 1e-6 * max(extent, 1.0) + 4 * exact_pad(np.float32, extent)
         bounds = (lo.min(axis=1, keepdims=True) - pad, hi.max(axis=1, keepdims=True) + pad)
     look_from = scene.camera.look_from
-    camera_mask = sum(1 << m for m, medium in enumerate(scene.media) if contains(medium, look_from))
-    return MediumTable(density=np.array([m.density for m in scene.media], dtype=np.float64),
-                       albedo=np.array([m.albedo for m in scene.media], dtype=np.float64).reshape(-1, 3).T.copy(),
+    camera_mask = sum(1 << int(bit_of[m]) for m, medium in enumerate(scene.media) if contains(medium, look_from))
+    density = np.array([m.density for m in scene.media], dtype=np.float64)
+    albedo = np.array([m.albedo for m in scene.media], dtype=np.float64).reshape(-1, 3).T
+    return MediumTable(density=density.take(medium_of_bit), albedo=albedo.take(medium_of_bit, axis=1),
+                       medium_of_bit=medium_of_bit,
                        boundaries=build_intersector(boundaries, extent) if len(boundaries) else None,
                        interface_of=interface, camera_mask=np.uint64(camera_mask), bounds=bounds)
 
