@@ -193,17 +193,26 @@ def contains(medium: Medium, point) -> bool:
     return bool(winding_number(mesh_triangles(b), p) > 0.5)
 
 
+# Triangles per pass of the winding number: bounds its temporaries (~10
+# arrays of 3 x this many float64) for boundaries of millions of faces.
+WINDING_BLOCK = 1 << 18
+
+
 def winding_number(triangles: dict, point: np.ndarray) -> float:
     """Generalised winding number of a closed, outward-wound triangle mesh at
     ``point``: 1 inside, 0 outside (Jacobson et al. 2013), from each triangle's
-    signed solid angle by Van Oosterom & Strackee's formula, all faces at once."""
-    p = point[:, None]
-    a, b, c = triangles["v0"] - p, triangles["v1"] - p, triangles["v2"] - p
-    la, lb, lc = (np.linalg.norm(x, axis=0) for x in (a, b, c))
-    triple = np.einsum("ij,ij->j", a, np.cross(b, c, axis=0))
-    dot = lambda x, y: np.einsum("ij,ij->j", x, y)  # noqa: E731
-    denominator = la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la
-    return float(np.sum(2.0 * np.arctan2(triple, denominator)) / (4.0 * math.pi))
+    signed solid angle by Van Oosterom & Strackee's formula, in blocks of
+    faces."""
+    p = np.asarray(point, dtype=np.float64)[:, None]
+    total = 0.0
+    for first in range(0, triangles["v0"].shape[1], WINDING_BLOCK):
+        a, b, c = (triangles[k][:, first:first + WINDING_BLOCK] - p for k in ("v0", "v1", "v2"))
+        la, lb, lc = (np.sqrt(np.einsum("ij,ij->j", x, x)) for x in (a, b, c))
+        triple = np.einsum("ij,ij->j", a, np.cross(b, c, axis=0))
+        dot = lambda x, y: np.einsum("ij,ij->j", x, y)  # noqa: E731
+        denominator = la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la
+        total += float(np.sum(2.0 * np.arctan2(triple, denominator)))
+    return total / (4.0 * math.pi)
 
 
 @dataclass(slots=True)
