@@ -10,7 +10,7 @@ LAYERS = [
     {"vecmath", "sampling", "validation", "transform", "memory"},
     {"textures", "geometry", "camera", "materials", "background", "batch", "units", "output"},
     {"film", "shapes"},  # shapes: the subpackage counts as one module
-    {"bvh", "accel", "lights"},
+    {"bvh", "accel", "lights", "media"},
     {"scene"},
     {"scenefile"},
     {"path", "whitted"},

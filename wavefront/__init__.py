@@ -9,6 +9,7 @@ from .background import Sky, Solid
 from .camera import Camera
 from .geometry import Sphere
 from .materials import Dielectric, Emissive, Lambertian, Metal, Phong
+from .media import Medium
 from .film import CheckpointError
 from .output import OutputError
 from .render import MemoryBudgetError, RenderResult, render, render_scene
@@ -20,7 +21,7 @@ from .transform import Transform
 
 __all__ = [
     "Box", "CheckpointError", "Checker", "ImageTexture", "MemoryBudgetError", "Noise", "OutputError",
-    "Camera", "Dielectric", "Emissive", "Lambertian", "Mesh", "Metal", "Phong", "PointLight", "Quad",
+    "Camera", "Dielectric", "Emissive", "Lambertian", "Medium", "Mesh", "Metal", "Phong", "PointLight", "Quad",
     "RenderResult", "RenderSettings", "Scene", "SceneError", "SceneWarning", "Sky", "Solid",
     "Sphere", "Transform", "Triangle", "box_quads", "load_scene", "render", "render_scene", "scene_from_dict",
 ]

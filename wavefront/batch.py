@@ -33,6 +33,9 @@ class PathBatch:
     eta_scale: np.ndarray | None = None  # (N,) float64
     # The path's time in [0, 1) for motion blur (None in a scene where nothing moves).
     time: np.ndarray | None = None  # (N,) float64
+    # The media the path is in, as bits (see wavefront.media); None in a
+    # scene without media.
+    media_mask: np.ndarray | None = None  # (N,) uint64
 
     def __len__(self) -> int:
         return self.slot.shape[0]
@@ -59,7 +62,8 @@ class PathBatch:
 @dataclass(slots=True)
 class ShadowBatch:
     """Shadow rays of next-event estimation: each adds ``contribution`` to its
-    sample's radiance unless something lies between ``origin`` and ``t_max``."""
+    sample's radiance unless something lies between ``origin`` and ``t_max``
+    (times the transmittance of the media it passes through)."""
 
     origin: np.ndarray  # (3, S)
     direction: np.ndarray  # (3, S), unit
@@ -67,6 +71,7 @@ class ShadowBatch:
     contribution: np.ndarray  # (3, S), MIS-weighted, throughput included
     slot: np.ndarray  # (S,) int64
     time: np.ndarray | None = None  # (S,) the path's time (motion blur), or None
+    media_mask: np.ndarray | None = None  # (S,) uint64: the media at the origin (None: no media)
 
     def __len__(self) -> int:
         return self.slot.shape[0]

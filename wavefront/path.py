@@ -7,6 +7,10 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
    few deep paths never costs a near-empty NumPy call per bounce);
 2. **intersect** every path with every shape (brute force or the BVH), and
    describe each hit in one :class:`~wavefront.shapes.SurfaceHits`;
+   **media** (scenes with participating media, :func:`travel_media`): free
+   flight through the media between each path's vertex and its hit,
+   crossing invisible boundaries; paths that scatter in a medium take
+   stages 5-9 there (:func:`scatter_in_media`) and rejoin at 9;
 3. **escaped** paths add ``throughput * background`` and end;
 4. **emitted**: paths that hit an emitter end; those that struck its front
    side add ``throughput * color``;
@@ -21,7 +25,16 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
 9. **compact** the survivors.
 
 A path ends in one of the book's three ways: it hits a light, escapes to the
-background, or reaches the depth limit (contributing nothing more).
+background, or reaches the depth limit (contributing nothing more); in a
+scene with media also where a black medium absorbs it.
+
+Participating media (:mod:`wavefront.media`): a vertex in a medium is lit
+like a diffuse one, the isotropic phase function ``1 / (4 pi)`` standing in
+for the BSDF and its pdf, and every shadow ray is attenuated by the
+transmittance of the media it crosses.  Free-flight distances are sampled
+analogly (with probability the transmittance), so a light reached through
+fog carries no transmittance factor and its MIS weight compares the same two
+pdfs as on a surface.
 
 Next-event estimation with multiple importance sampling (Veach 1997, ch. 9;
 pbrt-v4's wavefront ``SampleDirect``/``TraceShadowRays``; Mitsuba's ``path``)
@@ -43,12 +56,31 @@ import numpy as np
 from .batch import PathBatch, ShadowBatch
 from .units import Job
 from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
-from .sampling import (TIME_PAIR, bounce_dimension, light_choice_dimension, light_point_dimension, path_state,
-                       uniform_pairs, uniform_pairs_at)
+from .media import ISOTROPIC_PDF, cross, current_medium, medium_albedo, transmittance
+from .sampling import (CROSSINGS_PER_SEGMENT, TIME_PAIR, bounce_dimension, light_choice_dimension,
+                       light_point_dimension, medium_dimension, path_state, random_unit_vector, uniform_pairs,
+                       uniform_pairs_at)
+from .geometry import T_MIN
 from .scene import CompiledScene
+from .shapes import Hits
 from .vecmath import dot, gather, scatter, scatter_add
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
+# The search for media boundaries along a piece of a segment starts this far
+# before the piece (a vertex, or the boundary just crossed): a boundary
+# closer than T_MIN past a ray's origin is skipped, so starting on the
+# crossing itself missed any other boundary within T_MIN beyond it (where two
+# media's boundaries meet: one sample in a thousand lost its way in a
+# unit-sized scene).  Now only those within T_MIN - RESTART_BACKOFF (1e-6)
+# are missed; the boundary just crossed (or a surface's own boundary at a
+# vertex) lies within T_MIN and is skipped (were rounding to find it again,
+# crossing it again from the same side changes nothing).
+RESTART_BACKOFF = T_MIN * (1.0 - 1e-3)
+# A boundary less than this before a segment's hit counts as lying on the
+# surface, which wins: fog resting on a floor (a box boundary's bottom face
+# in the floor's plane) is left only through its sides, whatever the rounding
+# of a distance measured from a restart point.  The same 1e-6 as above.
+COINCIDENT = T_MIN - RESTART_BACKOFF
 # A shadow ray stops this fraction short of the light's surface, so that it
 # cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
 # the light than that is missed, 1e-4 of the distance.
@@ -94,6 +126,8 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
         specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
         eta_scale=np.ones(n),
         time=time,
+        # camera rays start in the media around the camera
+        media_mask=None if cs.media is None else np.full(n, cs.media.camera_mask, dtype=np.uint64),
     )
 
 
@@ -158,21 +192,29 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             break
         stats.segments += len(live)
         hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
+        in_medium = None
+        if cs.media is not None:
+            live, hits, in_medium, point = travel_media(cs, live, hits)
+            if len(in_medium):
+                in_medium = scatter_in_media(cs, in_medium, point, emitters, radiance, stats)
         live, surface = escaped(cs, live, hits, radiance)
-        if len(live) == 0:
-            continue
-        absorbed = emitted(cs, live, surface, radiance, emitters)
-        diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
-        albedo = surface_albedo(cs, surface)
-        if emitters is not None:
-            shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth, albedo)
-            trace_shadow_rays(cs, shadows, radiance, stats)
-        direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed, albedo)
-        if diffuse is not None:
-            record_sampling(cs, live, surface, diffuse, direction)
-        if roulette is not None:
-            absorbed = russian_roulette(live, absorbed, roulette.depth)
-        live = advance(live, surface, direction, absorbed, settings.depth)
+        if len(live):
+            absorbed = emitted(cs, live, surface, radiance, emitters)
+            diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
+            albedo = surface_albedo(cs, surface)
+            if emitters is not None:
+                shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth, albedo)
+                trace_shadow_rays(cs, shadows, radiance, stats)
+            direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed, albedo)
+            if diffuse is not None:
+                record_sampling(cs, live, surface, diffuse, direction)
+            if roulette is not None:
+                absorbed = russian_roulette(live, absorbed, roulette.depth)
+            if cs.media is not None:
+                cross_interfaces(cs, live, surface, direction, absorbed)
+            live = advance(live, surface, direction, absorbed, settings.depth)
+        if in_medium is not None:
+            live = PathBatch.concat(live, in_medium)
     return radiance
 
 
@@ -306,16 +348,22 @@ def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, diffuse
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
                        contribution=contribution, slot=live.slot.take(rows),
-                       time=None if time is None else time.take(ok))
+                       time=None if time is None else time.take(ok),
+                       media_mask=None if live.media_mask is None else live.media_mask.take(rows))
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
-    """Stage 6: the any-hit query for every shadow ray; the unblocked add their contribution."""
+    """Stage 6: the any-hit query for every shadow ray; the unblocked add their
+    contribution (with media, times the transmittance along the way)."""
     if len(shadows) == 0:
         return
     stats.shadow_rays += len(shadows)
     visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max, shadows.time))
-    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
+    contribution = gather(shadows.contribution, visible)
+    if shadows.media_mask is not None:
+        contribution *= shadow_transmittance(cs, gather(shadows.origin, visible), gather(shadows.direction, visible),
+                                             shadows.t_max.take(visible), shadows.media_mask.take(visible))
+    scatter_add(radiance, shadows.slot.take(visible), contribution)
 
 
 def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed, albedo=None):
@@ -395,3 +443,210 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
     if not alive.all():
         live = live.take(np.flatnonzero(alive))
     return live
+
+
+# -- participating media (wavefront.media) ----------------------------------------
+
+def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
+    """Visit the pieces of the segments ``origin + t direction``, ``0 <= t <
+    t_end``, between the invisible media boundaries they cross, in order.
+
+    For each piece, ``visit(row, start, stop, medium, piece)`` gets the rows
+    (indices into the segments) still walking, where their current pieces
+    start and stop along the segments, the medium each is in and the piece's
+    number (boundaries crossed so far), and returns which of those rows end
+    there (a path that scattered).  Every other row whose piece ended on a
+    boundary crosses it (its bit in ``mask``, updated in place, is set on
+    entering and cleared on leaving) and goes on.  Distances are measured from
+    ``origin``: a path's hit was found from its vertex, and a restart on a
+    boundary only looks for the next boundary.  Returns the rows that would
+    cross more than ``CROSSINGS_PER_SEGMENT - 1`` boundaries (unvisited past
+    that: rounding trouble, not light).
+    """
+    row = np.arange(t_end.shape[0])
+    start = np.zeros(row.size, dtype=np.float64)
+    for piece in range(CROSSINGS_PER_SEGMENT):
+        end = t_end.take(row).astype(np.float64)
+        d = gather(direction, row)
+        # the boundary query starts just before the piece (see RESTART_BACKOFF),
+        # so that a boundary right past a crossing, or past a vertex in a
+        # medium, is not skipped as T_MIN skips surfaces at a ray's origin
+        back = start - RESTART_BACKOFF
+        o = gather(origin, row) + back.astype(d.dtype) * d
+        if media.boundaries is not None:
+            hits = boundary_hits(media, o, d, (end - back - COINCIDENT).astype(o.dtype))
+            crossing = hits.primitive_idx >= 0
+            stop = np.where(crossing, back + hits.t, end)
+        else:
+            crossing, stop = np.zeros(row.size, dtype=bool), end
+        # No closed boundary reaches infinity: a piece that does is in no
+        # medium, whatever a crossing missed by rounding left in the mask.
+        unbounded = row.take(np.flatnonzero(stop == np.inf))
+        mask[unbounded] = 0
+        ended = visit(row, start, stop, current_medium(mask.take(row)), piece)
+        go = np.flatnonzero(crossing & ~ended)
+        if go.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        surface = media.boundaries.surface(gather(o, go), gather(d, go), hits.t.take(go), hits.primitive_idx.take(go))
+        row, start = row.take(go), stop.take(go)
+        mask[row] = cross(mask.take(row), surface.material_idx, surface.front_face)  # a boundary's material: its medium
+    return row
+
+
+def boundary_hits(media, origin, direction, t_max) -> Hits:
+    """The nearest boundary hit of each ray before ``t_max``, asking the
+    boundaries' intersector only about rays whose segment meets the box
+    around every boundary (a slab test, padded; rays that pass it get the
+    intersector's exact answer, so the cull changes no hit)."""
+    n = origin.shape[1]
+    lo, hi = media.bounds
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / direction.astype(np.float64)
+        t1 = (lo - origin) * inverse
+        t2 = (hi - origin) * inverse
+        # fmin/fmax skip the NaN of a ray lying in a slab's plane: that axis then culls nothing
+        near = np.fmax.reduce(np.fmin(t1, t2), axis=0)
+        far = np.fmin.reduce(np.fmax(t1, t2), axis=0)
+    meets = ~((near > far) | (far < 0.0) | (near > t_max))  # NaN comparisons are false: such rays are kept
+    if meets.all():
+        return media.boundaries.intersect(origin, direction, t_max)
+    t = np.full(n, np.inf, dtype=origin.dtype)
+    primitive = np.full(n, -1, dtype=np.int32)
+    idx = np.flatnonzero(meets)
+    if idx.size:
+        hits = media.boundaries.intersect(gather(origin, idx), gather(direction, idx),
+                                          np.broadcast_to(t_max, (n,)).take(idx))
+        t[idx], primitive[idx] = hits.t, hits.primitive_idx
+    return Hits(t, primitive)
+
+
+def travel_media(cs: CompiledScene, live: PathBatch, hits):
+    """Stage 2b (scenes with media): free flight between each path's vertex
+    and its hit.
+
+    In every piece of the segment inside a medium, the path draws the
+    distance to its next interaction, ``-ln(1 - u) / density`` (analog
+    sampling: the probability of flying past a distance is the
+    transmittance, so neither outcome reweights the throughput, and light
+    reached through the medium needs no transmittance factor).  If that falls
+    within the piece, the path scatters in the medium there; else it crosses
+    the boundary ending the piece (its media mask changes) or reaches its
+    hit.  Crossings spend no segment of ``max_depth``; a path that would make
+    more than ``CROSSINGS_PER_SEGMENT - 1`` ends (it contributes nothing more).
+
+    Returns
+    -------
+    (paths that reach their hit or escape, their hits, paths that scatter in
+    a medium, the points ``(3, K)`` where they do)
+    """
+    media = cs.media
+    n = len(live)
+    t_scatter = np.full(n, np.inf)
+
+    def free_flight(row, start, stop, medium, piece):
+        ended = np.zeros(row.size, dtype=bool)
+        inside = np.flatnonzero(medium >= 0)
+        if inside.size:
+            rows = row.take(inside)
+            u = uniform_pairs_at(live.state.take(rows), medium_dimension(live.depth.take(rows), piece))[0]
+            with np.errstate(divide="ignore"):  # density 0: an infinite flight, as if the medium were not there
+                t = start.take(inside) - np.log1p(-u) / media.density.take(medium.take(inside))
+            near = np.flatnonzero(t < stop.take(inside))
+            t_scatter[rows.take(near)] = t.take(near)
+            ended[inside.take(near)] = True
+        return ended
+
+    mask = live.media_mask.copy()
+    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight)
+    live.media_mask = mask
+    scatters = t_scatter < np.inf
+    in_idx = np.flatnonzero(scatters)
+    in_medium = live.take(in_idx)
+    point = in_medium.origin + t_scatter.take(in_idx).astype(cs.dtype) * in_medium.direction
+    keep = ~scatters
+    keep[lost] = False
+    if not keep.all():
+        rest = np.flatnonzero(keep)
+        live, hits = live.take(rest), Hits(hits.t.take(rest), hits.primitive_idx.take(rest))
+    return live, hits, in_medium, point
+
+
+def shadow_transmittance(cs: CompiledScene, origin, direction, t_max, mask) -> np.ndarray:
+    """``(S,)`` fraction of light that crosses the media along unoccluded
+    shadow rays: the product of ``exp(-density * length)`` over the pieces
+    between boundaries (0 for a ray with more crossings than allowed)."""
+    fraction = np.ones(t_max.shape[0])
+
+    def attenuate(row, start, stop, medium, piece):
+        inside = np.flatnonzero(medium >= 0)
+        fraction[row.take(inside)] *= transmittance(cs.media.density.take(medium.take(inside)),
+                                                    stop.take(inside) - start.take(inside))
+        return np.zeros(row.size, dtype=bool)
+
+    fraction[walk_boundaries(cs.media, origin, direction, t_max, mask.copy(), attenuate)] = 0.0
+    return fraction
+
+
+def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radiance, stats: TraceStats) -> PathBatch:
+    """Stages 5-9 for vertices in media: a light sample (its shadow ray
+    attenuated by transmittance), then the isotropic phase function's sample
+    (uniform on the sphere, pdf ``1 / (4 pi)``, so the throughput is
+    multiplied by the albedo alone), roulette, and the next segment.  A black
+    medium (albedo 0) is a pure absorber: its paths end here.  Returns the
+    paths that go on."""
+    settings = cs.scene.render
+    albedo = medium_albedo(cs.media, current_medium(live.media_mask), point)
+    absorbed = albedo.max(axis=0) <= 0.0
+    if emitters is not None:
+        shadows = sample_lights_in_media(cs, emitters, live, point, albedo, absorbed, settings.depth)
+        trace_shadow_rays(cs, shadows, radiance, stats)
+    u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
+    direction = random_unit_vector(u[0], u[1])
+    live.throughput *= albedo
+    live.bsdf_pdf = np.full(len(live), ISOTROPIC_PDF)
+    live.specular = np.zeros(len(live), dtype=bool)
+    if settings.russian_roulette is not None:
+        absorbed = russian_roulette(live, absorbed, settings.russian_roulette.depth)
+    live.origin = point
+    live.direction = direction
+    live.depth += 1
+    alive = ~absorbed & (live.depth < settings.depth)
+    return live if alive.all() else live.take(np.flatnonzero(alive))
+
+
+def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, albedo, absorbed,
+                           max_depth: int) -> ShadowBatch:
+    """One light sample per medium vertex, as :func:`sample_lights` does for
+    surfaces, with the isotropic phase function ``1 / (4 pi)`` as both the
+    scattering function and the pdf MIS weighs it against.  The contribution
+    is ``throughput * albedo / (4 pi) * radiance * w_light / p_light`` (the
+    transmittance comes with the shadow ray)."""
+    rows = np.flatnonzero(~absorbed & (live.depth + 1 < max_depth))
+    state, depth = live.state.take(rows), live.depth.take(rows)
+    u_point = uniform_pairs_at(state, light_point_dimension(depth))
+    u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
+    origin = gather(point, rows)
+    time = None if live.time is None else live.time.take(rows)
+    light = emitters.sample(origin, u_choice, u_point, time)
+    ok = np.flatnonzero(light.radiance.max(axis=0) > 0.0)
+    rows, pdf = rows.take(ok), light.pdf.take(ok)
+    contribution = (gather(live.throughput, rows) * gather(albedo, rows) * gather(light.radiance, ok)
+                    * (ISOTROPIC_PDF * mis_weight(pdf, ISOTROPIC_PDF) / pdf))
+    return ShadowBatch(origin=gather(origin, ok), direction=gather(light.direction, ok).astype(cs.dtype),
+                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
+                       contribution=contribution, slot=live.slot.take(rows),
+                       time=None if time is None else time.take(ok), media_mask=live.media_mask.take(rows))
+
+
+def cross_interfaces(cs: CompiledScene, live: PathBatch, surface, direction, absorbed) -> None:
+    """Paths transmitted through a visible surface that also bounds a medium
+    (a glass ball full of fog) enter or leave that medium; reflected paths
+    stay where they were."""
+    medium = cs.media.interface_of.take(surface.primitive_idx)
+    rows = np.flatnonzero((medium >= 0) & ~absorbed)
+    if rows.size == 0:
+        return
+    # the geometric normal faces the incoming ray: a transmitted direction leaves on its far side
+    through = rows.take(np.flatnonzero(dot(gather(surface.geometric_normal, rows), gather(direction, rows)) < 0.0))
+    live.media_mask[through] = cross(live.media_mask.take(through), medium.take(through),
+                                     surface.front_face.take(through))

@@ -36,8 +36,10 @@ from .camera import Camera
 from .geometry import Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
+from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, boundary_volume, contains
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
+from .textures import TextureTable, is_texture
 from .validation import SceneError, color, describe, fail, instance, integer, source_of, string
 
 RGB = tuple[float, float, float]
@@ -187,6 +189,8 @@ class Scene:
                                          (a box is six quads)
     ``triangles``   ()                   list of :class:`~wavefront.shapes.Triangle`
     ``meshes``      ()                   list of :class:`~wavefront.shapes.Mesh`
+    ``media``       ()                   list of :class:`~wavefront.media.Medium`
+                                         (``path`` integrator only)
     ``camera``      ``Camera()``         see :class:`wavefront.camera.Camera`
     ``width``       400                  image width in pixels
     ``height``      225                  image height in pixels
@@ -211,6 +215,7 @@ class Scene:
     quads: list[Quad] = field(default_factory=list)
     triangles: list[Triangle] = field(default_factory=list)
     meshes: list[Mesh] = field(default_factory=list)
+    media: list[Medium] = field(default_factory=list)
 
     def __post_init__(self):
         """Check every field and how they fit together; normalise sequences to
@@ -249,9 +254,16 @@ class Scene:
             shapes[key] = self._shape_list(key, kind)
             set_field(self, key, shapes[key])
             self._check_references(materials, key, shapes[key])
-        if not any(shapes.values()):
+        media = self._shape_list("media", Medium)
+        set_field(self, "media", media)
+        if len(media) > MAX_MEDIA:
+            fail(self, "media", f"{len(media)} media; at most {MAX_MEDIA} are supported (a path holds its "
+                                "media as the bits of one 64-bit mask)")
+        if media and self.render.integrator != "path":
+            fail(self, "media", "media need the path integrator (render.integrator: path)")
+        if not any(shapes.values()) and not media:
             fail(self, "shapes", "the scene has no shapes (give at least one of: spheres, quads, boxes, "
-                                 "triangles, meshes)")
+                                 "triangles, meshes, media)")
 
         lights = self.lights
         if not isinstance(lights, Sequence) or isinstance(lights, str):
@@ -329,6 +341,7 @@ class CompiledScene:
     light_color: np.ndarray  # (3, L)
     dtype: np.dtype
     emitters: EmitterTable | None = None  # every emissive primitive, for light sampling (path)
+    media: MediumTable | None = None  # participating media, None in a scene without
 
     @classmethod
     def build(cls, scene: Scene) -> CompiledScene:
@@ -342,12 +355,13 @@ class CompiledScene:
         table = MaterialTable.build([scene.materials[n] for n in names], names, dtype)
         extent = scene_extent(scene, bounds)
         primitives = compile_shapes(scene, index, dtype, extent)
+        media = compile_media(scene, primitives, extent)
         emitters = EmitterTable.build(primitives, table) if scene.render.integrator == "path" else None
         shapes = build_intersector(primitives, extent)
         nl = len(scene.lights)
         light_position = np.array([lt.position for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
         light_color = np.array([lt.color for lt in scene.lights], dtype=np.float64).reshape(nl, 3).T
-        return cls(scene, shapes, table, light_position, light_color, dtype, emitters)
+        return cls(scene, shapes, table, light_position, light_color, dtype, emitters, media)
 
 
 def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) -> Primitives:
@@ -381,6 +395,108 @@ def compile_shapes(scene: Scene, index: dict[str, int], dtype, extent: float) ->
     return Primitives([spheres, quads, triangles], dtype, exact_pad(dtype, extent))
 
 
+def compile_media(scene: Scene, primitives: Primitives, extent: float) -> MediumTable | None:
+    """The scene's media as a :class:`MediumTable` (None without media).
+
+    Boundaries are primitives of their own, in their own intersector: the
+    scene's intersection is untouched by them (so a ray's hit is found from
+    its vertex exactly as without media), and the path integrator walks the
+    boundaries between a vertex and its hit.  A boundary primitive identical
+    to a visible one is not duplicated: the visible one bounds the medium
+    (see :mod:`wavefront.media`).  Media are numbered by their bit in a
+    path's mask, largest volume first (the innermost wins); a boundary
+    primitive's ``material_idx`` is that number.
+    """
+    if not scene.media:
+        return None
+    dtype = primitives.dtype
+    volume = np.array([boundary_volume(m) for m in scene.media])
+    medium_of_bit = np.lexsort((np.arange(volume.size), -volume))  # ties: the one listed last gets the higher bit
+    bit_of = np.empty_like(medium_of_bit)
+    bit_of[medium_of_bit] = np.arange(volume.size)
+    visible = {type(k).__name__: k for k in primitives.kinds}
+    offset = {type(k).__name__: int(o) for k, o in zip(primitives.kinds, primitives.offsets)}
+    interface = np.full(len(primitives), -1, dtype=np.int32)
+    # per kind: (medium, rows (B, K) compared with the visible kind's fields, rows (B, K') it is built from)
+    rows = {"SphereSet": [], "QuadSet": [], "TriangleSet": []}
+    for listed, medium in enumerate(scene.media):
+        m = int(bit_of[listed])
+        kind, value = boundary_primitives(medium)
+        if kind == "sphere":
+            center, radius = value
+            sphere = np.append(center, radius)[None, :]
+            rows["SphereSet"].append((m, sphere, sphere))
+        elif kind == "quads":
+            quads = np.array([np.concatenate(q.world()) for q in value])
+            rows["QuadSet"].append((m, quads, quads))
+        else:
+            v0, v1, v2 = value["v0"], value["v1"], value["v2"]
+            rows["TriangleSet"].append((m, np.concatenate((v0, v1 - v0, v2 - v0)).T, np.concatenate((v0, v1, v2)).T))
+    # a moving sphere is never a boundary (the boundary stays where it is):
+    # NaN centres match no wanted row (boundaries are finite)
+    fields = {"SphereSet": lambda k: np.concatenate((k.center if k.velocity is None else
+                                                     np.where((k.velocity != 0).any(axis=0), np.nan, k.center),
+                                                     k.radius[None, :])),
+              "QuadSet": lambda k: np.concatenate((k.corner, k.u, k.v)),
+              "TriangleSet": lambda k: np.concatenate((k.v0, k.e1, k.e2))}
+    kinds = []
+    for name, parts in rows.items():
+        if not parts:
+            continue
+        have = fields[name](visible[name]).T.astype(np.float64) if name in visible else np.zeros((0, 1))
+        keep, medium_idx = [], []
+        for m, wanted, build in parts:
+            same = _matching_rows(have, wanted)
+            interface[offset.get(name, 0) + same[same >= 0]] = m
+            keep.append(build[same < 0])
+            medium_idx.append(np.full(keep[-1].shape[0], m, dtype=np.int32))
+        r, medium_idx = np.concatenate(keep), np.concatenate(medium_idx)
+        if name == "SphereSet":
+            kinds.append(SphereSet(r[:, :3].T, r[:, 3], medium_idx, dtype))
+        elif name == "QuadSet":
+            kinds.append(QuadSet(r[:, 0:3].T, r[:, 3:6].T, r[:, 6:9].T, medium_idx, dtype, extent))
+        else:
+            kinds.append(TriangleSet(r[:, 0:3].T, r[:, 3:6].T, r[:, 6:9].T, medium_idx, dtype, extent))
+    from .accel import build_intersector
+
+    boundaries = Primitives(kinds, dtype, exact_pad(dtype, extent))
+    bounds = (np.full((3, 1), -np.inf), np.full((3, 1), np.inf))
+    if len(boundaries):
+        lo, hi = boundaries.bounds()
+        # far more than any hit's rounding (flat primitives accept hits up to exact_pad outside their box)
+        pad = 1e-6 * max(extent, 1.0) + 4 * exact_pad(np.float32, extent)
+        bounds = (lo.min(axis=1, keepdims=True) - pad, hi.max(axis=1, keepdims=True) + pad)
+    look_from = scene.camera.look_from
+    camera_mask = sum(1 << int(bit_of[m]) for m, medium in enumerate(scene.media) if contains(medium, look_from))
+    density = np.array([m.density for m in scene.media], dtype=np.float64)
+    textures = TextureTable()
+    node = np.array([textures.add(m.albedo) for m in scene.media], dtype=np.int64)
+    albedo = np.stack([textures.mean(n) for n in node], axis=1)
+    textured = any(is_texture(m.albedo) for m in scene.media)
+    return MediumTable(density=density.take(medium_of_bit), albedo=albedo.take(medium_of_bit, axis=1),
+                       medium_of_bit=medium_of_bit,
+                       boundaries=build_intersector(boundaries, extent) if len(boundaries) else None,
+                       interface_of=interface, camera_mask=np.uint64(camera_mask), bounds=bounds,
+                       textures=textures if textured else None,
+                       albedo_node=node.take(medium_of_bit) if textured else None)
+
+
+def _matching_rows(visible: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """For each row of ``wanted (B, K)``, the index of an identical row of
+    ``visible (M, K)`` (both float64), or -1: sorted byte keys, no Python loop."""
+    found = np.full(wanted.shape[0], -1, dtype=np.int64)
+    if visible.shape[0] == 0 or wanted.shape[0] == 0 or visible.shape[1] != wanted.shape[1]:
+        return found
+    key = np.dtype((np.void, 8 * visible.shape[1]))
+    have = np.ascontiguousarray(visible + 0.0).view(key).ravel()  # + 0.0: -0.0 and 0.0 get the same bytes
+    want = np.ascontiguousarray(wanted + 0.0).view(key).ravel()
+    order = np.argsort(have, kind="stable")
+    pos = np.minimum(np.searchsorted(have[order], want), have.size - 1)
+    hit = have[order[pos]] == want
+    found[hit] = order[pos[hit]]
+    return found
+
+
 def _face_normal(part: dict) -> np.ndarray:
     n = np.cross(part["v1"] - part["v0"], part["v2"] - part["v0"], axis=0)
     return n / np.linalg.norm(n, axis=0)
@@ -410,9 +526,22 @@ def shape_points(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     for m in scene.meshes:
         vertices = m.vertices if m.transform is None else m.transform.points(m.vertices.T).T
         points.append(vertices)
-    points = np.concatenate(points)
-    radii.append(np.zeros(points.shape[0] - sum(r.size for r in radii)))
-    return points, np.concatenate(radii)
+    radii.append(np.zeros(sum(p.shape[0] for p in points) - sum(r.size for r in radii)))
+    for medium in scene.media:  # boundaries bound where rays go, too
+        kind, value = boundary_primitives(medium)
+        if kind == "sphere":
+            points.append(value[0][None, :])
+            radii.append(np.array([value[1]]))
+        else:
+            corners = (np.concatenate([_quad_corners(*q.world()) for q in value]) if kind == "quads"
+                       else np.concatenate((value["v0"], value["v1"], value["v2"]), axis=1).T)
+            points.append(corners)
+            radii.append(np.zeros(corners.shape[0]))
+    return np.concatenate(points), np.concatenate(radii)
+
+
+def _quad_corners(c, u, v) -> np.ndarray:
+    return np.array([c, c + u, c + v, c + u + v])
 
 
 def unknown_material(name: str, materials) -> str:
@@ -455,7 +584,7 @@ def precision_of(scene: Scene, shapes: tuple[np.ndarray, np.ndarray] | None = No
     choice = scene.render.precision
     if choice != "auto":
         return np.dtype(choice)
-    if scene.quads or scene.triangles or scene.meshes:
+    if scene.quads or scene.triangles or scene.meshes or scene.media:
         return np.dtype(np.float64)
     shapes = shapes if shapes is not None else shape_points(scene)
     return precision_for(shapes[1][:len(scene.spheres)], scene_extent(scene, shapes))  # spheres come first

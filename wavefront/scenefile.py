@@ -43,6 +43,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
     MATERIAL_TYPES, MAX_DEPTH, MAX_PIXELS, MAX_SAMPLES_PER_PIXEL, MAX_SEED, PointLight, RenderSettings, Scene,
     unknown_material,
 )
+from .media import Medium
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
 from .memory import refuse_unless_fits
 from .textures import image_load_bytes
@@ -551,7 +552,8 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
 def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: bool,
                          memory: int | None = None) -> Scene:
     top = _mapping(source, doc, "", {"name", "image", "camera", "render", "background", "materials",
-                                     "spheres", "quads", "boxes", "triangles", "meshes", "lights", "ambient"})
+                                     "spheres", "quads", "boxes", "triangles", "meshes", "media", "lights",
+                                     "ambient"})
     image = _mapping(source, top.get("image"), "image", {"width", "height"})
     render = _object(source, top.get("render"), "render", RenderSettings)
     camera = _object(source, top.get("camera"), "camera", Camera)
@@ -582,6 +584,7 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         quads.extend(box.quads())
     triangles = _shapes(source, top.get("triangles"), "triangles", Triangle, defined)
     meshes = _meshes(source, top.get("meshes"), defined, memory)
+    media = _media(source, top.get("media"), memory)
 
     lights_doc = top.get("lights") or []
     if not isinstance(lights_doc, list):
@@ -598,7 +601,7 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
 
     fields = {"spheres": spheres, "quads": quads, "triangles": triangles, "meshes": meshes,
               "materials": materials, "camera": camera, "render": render, "background": background,
-              "lights": tuple(lights)}
+              "lights": tuple(lights), "media": media}
     for key in ("width", "height"):
         if key in image:
             fields[key] = image[key]
@@ -757,3 +760,67 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
         _check_reference(source, path, mesh.material, defined)
         meshes.append(mesh)
     return meshes
+
+
+_BOUNDARY_KEYS = {"sphere": ({"center", "radius", "transform"}, {"center", "radius"}),
+                  "box": ({"min", "max", "transform"}, {"min", "max"}),
+                  "mesh": ({"file", "transform"}, {"file"})}
+_BOUNDARY_MATERIAL = 0  # a boundary is never shaded; its shape's material field is a placeholder
+
+
+def _media(source: str, docs, memory: int | None = None) -> list[Medium]:
+    """``media``: ``{boundary: {sphere | box | mesh: ...}, density, albedo}``
+    each (see :mod:`wavefront.media`); a mesh boundary's file is read as a
+    mesh's is, relative to the scene file, and must be closed."""
+    if docs is None:
+        return []
+    if not isinstance(docs, list):
+        raise SceneError(source, "media", f"expected a list, got {describe(docs)}")
+    base = "" if source.startswith("<") else os.path.dirname(source)
+    media = []
+    for i, spec in enumerate(docs):
+        path = f"media[{i}]"
+        spec = _mapping(source, spec, path, {"boundary", "density", "albedo"}, {"boundary", "density"})
+        boundary_doc = _mapping(source, spec["boundary"], f"{path}.boundary", set(_BOUNDARY_KEYS))
+        if len(boundary_doc) != 1:
+            raise SceneError(source, f"{path}.boundary", "expected exactly one of: box, mesh, sphere, got "
+                                                         f"{', '.join(sorted(boundary_doc)) or 'none'}")
+        (kind, shape_doc), = boundary_doc.items()
+        where = f"{path}.boundary.{kind}"
+        allowed, required = _BOUNDARY_KEYS[kind]
+        shape_doc = dict(_mapping(source, shape_doc, where, allowed, required))
+        if kind == "sphere":
+            boundary = _build(source, where, Sphere, shape_doc, material=_BOUNDARY_MATERIAL)
+        elif kind == "box":
+            boundary = _build(source, where, Box, shape_doc, material=_BOUNDARY_MATERIAL)
+        else:
+            boundary = _boundary_mesh(source, where, shape_doc, base, memory)
+        fields = {k: v for k, v in spec.items() if k != "boundary"}
+        try:
+            medium = Medium(boundary=boundary, **fields)
+        except SceneError as e:
+            rest = e.path.removeprefix(f"boundary.{kind}.") if e.path.startswith("boundary.") else e.path
+            raise SceneError(source, join(where if e.path.startswith("boundary.") else path, rest),
+                             e.problem) from None
+        media.append(medium)
+    return media
+
+
+def _boundary_mesh(source: str, where: str, spec: dict, base: str, memory: int | None) -> Mesh:
+    """A medium's mesh boundary, read as :func:`_meshes` reads a mesh."""
+    try:
+        name = string(Mesh, spec["file"], "file")
+        mesh_fields(Mesh, {"material": _BOUNDARY_MATERIAL, "transform": spec.get("transform")})
+    except SceneError as e:
+        raise e.within(source, where) from None
+    file = os.path.join(base, name)
+    if memory is not None:
+        with contextlib.suppress(OSError):
+            refuse_unless_fits(memory, MESH_LOAD_BYTES_PER_FILE_BYTE * os.stat(file).st_size,
+                               f"{source}: {where}.file: loading {file}")
+    try:
+        data = read_mesh(file)
+    except MeshError as e:
+        raise SceneError(source, f"{where}.file", f"{file}: {e}") from None
+    return _build(source, where, Mesh, {"transform": spec.get("transform")}, vertices=data["vertices"],
+                  faces=data["faces"], material=_BOUNDARY_MATERIAL, file=file, dropped=data["dropped"])
