@@ -10,12 +10,10 @@ reproducible:
 
     python scenes/make_next_week_final.py > scenes/next_week_final.yaml
 
-Two departures from the book, both so that the scene means what the book
-meant.  The fog inside the glass ball has a boundary a hair inside the glass
-(radius 69.9 for the glass's 70): wavefront's media are entered by crossing
-their boundary, and a boundary that coincides with the glass would be crossed
-at the very point where the glass refracts.  The image is 400 x 400 (the book:
-800 x 800 at 10,000 samples).
+The blue fog's boundary is the glass ball itself, as in the book: a medium
+boundary identical to a visible sphere makes that sphere the interface, so a
+path refracted into the glass is in the fog.  The image is 400 x 400 (the
+book: 800 x 800 at 10,000 samples).
 """
 
 import numpy as np
@@ -64,7 +62,7 @@ def main():
     for p in rng.uniform(0, 165, size=(1000, 3)):
         print(f"  - {{center: {fmt(p)}, radius: 10, material: white, transform: {box_of_spheres}}}")
     print("media:")
-    print("  - {boundary: {sphere: {center: [360, 150, 145], radius: 69.9}}, density: 0.2, albedo: [0.2, 0.4, 0.9]}")
+    print("  - {boundary: {sphere: {center: [360, 150, 145], radius: 70}}, density: 0.2, albedo: [0.2, 0.4, 0.9]}")
     print("  - {boundary: {sphere: {center: [0, 0, 0], radius: 5000}}, density: 0.0001, albedo: [1, 1, 1]}")
 
 
