@@ -23,6 +23,10 @@ budget     ``wavefront render`` under ``--memory 256M`` and ``1G`` (W2, 4K,
            8K, 200,000 spheres), the whole process tree's peak resident
            memory polled from outside next to the peak the summary reports.
 capacity   W1 at 20 spp on one core for several wavefront sizes.
+next_week  book 2's final scene (scenes/next_week_final.yaml, 400x400, 10
+           spp: textures, a moving sphere, fog) on all cores, and Mitsuba 3's
+           ``volpath`` on the comparable scene (flat colours, the sphere still
+           at mid-shutter, ``homogeneous`` media).
 geometry   the Cornell box (RTOW book 3, 128x128, 64 spp) and a generated
            ~1M-triangle terrain mesh (128x128, 16 spp) with wavefront on all
            cores and Mitsuba 3 on the same scenes (``rectangle`` and ``ply``
@@ -425,6 +429,31 @@ REFERENCE_SPP_OF_SCENE = {"scenes/cornell_spheres.yaml": {"wavefront": 2048}}
 REFERENCES = ROOT / "benchmarks" / "references"
 
 
+def section_next_week(runs):
+    """Book 2's final scene (textures, motion blur, media) against Mitsuba's
+    comparable scene (flat colours, the sphere still at mid-shutter,
+    ``homogeneous`` media, ``volpath``); issue #13's floor is 2x."""
+    variant, env, note = mitsuba_setup()
+    args = {"scene": "scenes/next_week_final.yaml"}
+    w = median_runs(WAVEFRONT_CHILD, args, runs)
+    rows = [["next_week_final 400x400, 10 spp", f"wavefront ({int(w['workers'])} workers)", f"{w['elapsed']:.2f} s",
+             f"{w['segments'] / w['elapsed'] / 1e6:.2f} M", fmt_mib(w["peak"])]]
+    data = {"wavefront": w}
+    if variant:
+        m = median_runs(MITSUBA_CHILD, dict(args, variant=variant, bench_dir=str(ROOT / "benchmarks")), runs, env)
+        data["mitsuba"] = m
+        rows[0].append(f"{w['elapsed'] / m['elapsed']:.2f}x")
+        rows.append(["next_week_final 400x400, 10 spp", f"{variant} (volpath)", f"{m['elapsed']:.2f} s", "–",
+                     fmt_mib(m["peak"]), "1.00x"])
+    else:
+        rows[0].append("–")
+    text = table(["scene", "renderer", "wall time", "path segments/s", "peak memory", "time / Mitsuba"], rows)
+    return (f"Baseline: {note}, its volpath integrator on the comparable scene (textures as their mean "
+            f"colour, the moving sphere still at mid-shutter). Medians of {runs} runs, each in a fresh process; "
+            f"wavefront's time includes compiling the scene and its BVH, Mitsuba's is a render after a "
+            f"warm-up.\n\n{text}"), data
+
+
 def _mse(image_path, reference):
     import numpy as np
 
@@ -643,12 +672,13 @@ def plot_scaling(data, path):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--section", choices=("all", "workloads", "geometry", "equal_error", "scaling", "memory",
-                                              "budget", "capacity", "distributed"),
+    parser.add_argument("--section", choices=("all", "workloads", "geometry", "next_week", "equal_error", "scaling",
+                                              "memory", "budget", "capacity", "distributed"),
                         default="all")
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    sections = (("workloads", "geometry", "equal_error", "scaling", "memory", "budget", "capacity", "distributed")
+    sections = (("workloads", "geometry", "next_week", "equal_error", "scaling", "memory", "budget", "capacity",
+                 "distributed")
                 if args.section == "all"
                 else (args.section,))
     everything = {}

@@ -11,6 +11,14 @@ nearest Mitsuba plugin: lambertian -> ``diffuse``, metal -> ``conductor``
 for timing), dielectric -> ``dielectric``, emissive -> an ``area`` emitter,
 which in Mitsuba as in wavefront emits on the front side only (a rectangle's
 normal is mapped to ``cross(u, v)``).
+
+Textures become their average colour (``wavefront.textures.mean_color``), a
+moving sphere stands still at its mid-shutter centre, and participating media
+become Mitsuba ``homogeneous`` media (``sigma_t`` = density, the average
+albedo, isotropic phase) behind ``null``-BSDF boundaries with the
+``volpath`` integrator; a boundary that coincides with a visible sphere puts
+the medium inside that sphere instead, and the camera gets the medium it
+stands in.  The work is comparable, not identical: timing, not images.
 """
 
 from __future__ import annotations
@@ -62,7 +70,9 @@ def mitsuba_scene_dict(scene, mi, russian_roulette=True, workdir="."):
         doc["sky"] = {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap(bg))}
     else:
         doc["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": list(bg.color)}}
-    rgb = lambda v: {"type": "rgb", "value": list(v)}  # noqa: E731
+    from wavefront.textures import mean_color
+
+    rgb = lambda v: {"type": "rgb", "value": [float(x) for x in mean_color(v)]}  # noqa: E731
 
     def material(name, shape):
         m = scene.materials[name]
@@ -80,16 +90,77 @@ def mitsuba_scene_dict(scene, mi, russian_roulette=True, workdir="."):
             shape["emitter"] = {"type": "area", "radiance": rgb(m.color)}
         return shape
 
-    from wavefront.shapes.sphere import world_sphere
+    from wavefront.shapes.sphere import world_center1, world_sphere
 
+    media = medium_dicts(scene, mi, doc, workdir) if scene.media else {}
     for i, sphere in enumerate(scene.spheres):
         center, radius = world_sphere(sphere)
-        doc[f"sphere{i}"] = material(sphere.material, {"type": "sphere", "center": center.tolist(), "radius": radius})
+        if sphere.center1 is not None:  # mid-shutter
+            center = 0.5 * (center + world_center1(sphere))
+        shape = material(sphere.material, {"type": "sphere", "center": center.tolist(), "radius": radius})
+        doc[f"sphere{i}"] = shape | media.get((tuple(center.tolist()), radius), {})
     for i, quad in enumerate(scene.quads):
         doc[f"quad{i}"] = material(quad.material, {"type": "rectangle", "to_world": rectangle_to_world(quad, mi)})
     for i, (name, path, smooth) in enumerate(triangle_files(scene, workdir)):
         doc[f"mesh{i}"] = material(name, {"type": "ply", "filename": path, "face_normals": not smooth})
     return doc
+
+
+def medium_dicts(scene, mi, doc, workdir):
+    """Add the scene's media to Mitsuba's ``doc`` (switching it to
+    ``volpath``): each a ``homogeneous`` medium, its boundary as ``null``
+    shapes with the medium inside and the medium around it outside.  Returns
+    ``{(centre, radius): {"interior": ..., "exterior": ...}}`` for boundaries
+    that coincide with a visible sphere (that sphere carries the medium)."""
+    import os
+
+    import trimesh
+
+    from wavefront.media import boundary_primitives, boundary_volume, contains
+    from wavefront.shapes.sphere import world_sphere
+    from wavefront.textures import mean_color
+
+    doc["integrator"]["type"] = "volpath"
+    volume = [boundary_volume(m) for m in scene.media]
+    ref = lambda i: {"type": "ref", "id": f"medium{i}"}  # noqa: E731
+
+    def around(point, inside_of=None):
+        """The innermost medium (smallest volume) containing ``point``, other than ``inside_of``."""
+        found = [i for i, m in enumerate(scene.media) if i != inside_of and contains(m, point)
+                 and (inside_of is None or volume[i] > volume[inside_of])]
+        return min(found, key=lambda i: volume[i]) if found else None
+
+    for i, m in enumerate(scene.media):
+        doc[f"medium{i}"] = {"type": "homogeneous", "sigma_t": float(m.density),
+                             "albedo": {"type": "rgb", "value": [float(x) for x in mean_color(m.albedo)]},
+                             "phase": {"type": "isotropic"}}
+    camera = around(scene.camera.look_from)
+    if camera is not None:
+        doc["sensor"]["medium"] = ref(camera)
+    visible = {(tuple(c.tolist()), r) for c, r in (world_sphere(s) for s in scene.spheres if s.center1 is None)}
+    carried = {}
+    for i, m in enumerate(scene.media):
+        kind, value = boundary_primitives(m)
+        probe = value[0] if kind == "sphere" else (value[0].world()[0] if kind == "quads" else value["v0"][:, 0])
+        outside = around(np.asarray(probe, dtype=float) + 1e-3, inside_of=i)
+        sides = {"interior": ref(i)} | ({} if outside is None else {"exterior": ref(outside)})
+        if kind == "sphere":
+            key = (tuple(np.asarray(value[0], dtype=float).tolist()), float(value[1]))
+            if key in visible:
+                carried[key] = sides
+                continue
+            doc[f"boundary{i}"] = {"type": "sphere", "center": list(key[0]), "radius": key[1],
+                                   "bsdf": {"type": "null"}} | sides
+        elif kind == "quads":
+            for k, q in enumerate(value):
+                doc[f"boundary{i}_{k}"] = {"type": "rectangle", "to_world": rectangle_to_world(q, mi),
+                                           "bsdf": {"type": "null"}} | sides
+        else:
+            v = np.stack((value["v0"], value["v1"], value["v2"]), axis=1).T.reshape(-1, 3)
+            path = os.path.join(workdir, f"boundary{i}.ply")
+            trimesh.Trimesh(v, np.arange(v.shape[0]).reshape(-1, 3), process=False).export(path)
+            doc[f"boundary{i}"] = {"type": "ply", "filename": path, "bsdf": {"type": "null"}} | sides
+    return carried
 
 
 def rectangle_to_world(quad, mi):
