@@ -200,15 +200,9 @@ def test_a_full_disk_while_writing_an_exr_is_an_oserror(tmp_path, monkeypatch):
 
 def _table_script():
     """wavefront/data/make_srgb8_thresholds.py, which computes the table with colour-science."""
-    import importlib.util
+    from wavefront.data import make_srgb8_thresholds
 
-    from wavefront.output import SRGB8_THRESHOLDS
-
-    path = os.path.join(os.path.dirname(SRGB8_THRESHOLDS), "make_srgb8_thresholds.py")
-    spec = importlib.util.spec_from_file_location("make_srgb8_thresholds", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return make_srgb8_thresholds
 
 
 def test_the_srgb8_table_is_what_colour_science_gives_today():
