@@ -314,13 +314,16 @@ def _write_npy(f, image) -> None:
 
 
 def _write_png(f, image, metadata) -> None:
-    import imageio.v3 as iio
+    # Pillow's PNG writer, called as imageio calls it (the same bytes), without
+    # imageio: its writer makes Pillow import every one of its ~45 format
+    # plugins to look up ".png", ~40 ms of a 0.35 s command.
+    from PIL import Image
     from PIL.PngImagePlugin import PngInfo
 
     info = PngInfo()
     for key, value in metadata.items():
         info.add_text(key, value)
-    iio.imwrite(f, encode_srgb8(image), extension=".png", pnginfo=info)
+    Image.fromarray(encode_srgb8(image)).save(f, format="PNG", pnginfo=info)
 
 
 def _write_exr(path, image, metadata) -> None:
