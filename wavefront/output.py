@@ -41,9 +41,9 @@ ENCODE_BYTES_PER_PIXEL = {".png": 3 + 4, ".exr": 12 + 12, ".npy": 0}
 # measured with Pillow 13 on top of NumPy and wavefront, plus room for versions.
 # (Encoding through colour-science at run time cost ~90 MiB: see SRGB8_THRESHOLDS.)
 PNG_IMPORT_BYTES = 16 << 20
-# Strip temporaries: float64 RGB rows, their int64 codes from searchsorted,
-# and one copy to spare.
-STRIP_BYTES_PER_PIXEL = 3 * 3 * 8
+# Strip temporaries: float64 RGB rows, their int64 buckets, the gathered
+# float64 thresholds, and one copy to spare.
+STRIP_BYTES_PER_PIXEL = 4 * 3 * 8
 # colour-science's 8-bit sRGB encoding as the 255 linear values where its
 # code steps, generated (and checked by tests/test_output.py) with
 # colour-science itself by data/make_srgb8_thresholds.py: encoding a PNG
@@ -221,6 +221,31 @@ def srgb8_thresholds() -> np.ndarray:
     return table
 
 
+# The lookup: a float64's bits, shifted right by BUCKET_SHIFT, name a bucket
+# of 2**(52 - BUCKET_SHIFT) = 4096 buckets per octave (non-negative floats'
+# bits are ordered like their values).  The sRGB codes step at most once in
+# such a bucket (checked when the buckets are built), so a code is the
+# bucket's count of thresholds below it, plus one if the value reaches the
+# bucket's threshold: two gathers and a compare per value, exact, ~5x faster
+# than a binary search of the thresholds (np.searchsorted).
+BUCKET_SHIFT = 40
+
+
+@functools.cache
+def _srgb8_buckets() -> tuple[int, np.ndarray, np.ndarray]:
+    """(first bucket, codes below each bucket (uint8), each bucket's threshold or +inf)."""
+    thresholds = srgb8_thresholds()
+    first = int(thresholds[:1].view(np.int64)[0]) >> BUCKET_SHIFT
+    last = int(np.array([1.0]).view(np.int64)[0]) >> BUCKET_SHIFT  # 1.0 and above: every threshold is below
+    starts = (np.arange(first, last + 2, dtype=np.int64) << BUCKET_SHIFT).view(np.float64)
+    below = np.searchsorted(thresholds, starts, side="left")  # thresholds < each bucket's start
+    inside = below[1:] - below[:-1]
+    if inside.max() > 1 or below[-2] != len(thresholds):  # a coarser shift, or another table
+        raise RuntimeError("sRGB buckets hold more than one threshold each")
+    split = np.where(inside == 1, thresholds[np.minimum(below[:-1], len(thresholds) - 1)], np.inf)
+    return first, below[:-1].astype(np.uint8), split
+
+
 def encode_srgb8(image: np.ndarray) -> np.ndarray:
     """Linear RGB (H, W, 3) -> 8-bit sRGB with colour-science's transfer function.
 
@@ -229,16 +254,24 @@ def encode_srgb8(image: np.ndarray) -> np.ndarray:
     row source (see :func:`write_image`).  The codes are colour-science's
     ``rint(255 * cctf_encoding(x, function="sRGB"))`` bit for bit, looked up
     in :func:`srgb8_thresholds` instead of computed: a code is the number of
-    thresholds at or below the value (below 0 that is none, from 1 on all 255).
+    thresholds at or below the value (below 0 that is none, from 1 on all
+    255), found through buckets of the value's bits (``BUCKET_SHIFT``).
     """
-    thresholds = srgb8_thresholds()
+    first, below, split = _srgb8_buckets()
     height, width, rows = _row_source(image)
     out = np.empty((height, width, 3), dtype=np.uint8)
     for r0 in range(0, height, ENCODE_ROWS):
         r1 = min(height, r0 + ENCODE_ROWS)
         strip = np.array(rows(r0, r1), dtype=np.float64)  # a copy: the caller's image is left alone
-        np.nan_to_num(strip, copy=False, nan=0.0)  # NaN sorts after everything; it encodes as 0
-        out[r0:r1] = np.searchsorted(thresholds, strip, side="right")
+        np.nan_to_num(strip, copy=False, nan=0.0)  # NaN encodes as 0 (+-inf become +-max: 255 and 0)
+        bucket = strip.view(np.int64) >> BUCKET_SHIFT
+        bucket -= first
+        # negative values (sign bit set) and those below the first threshold's
+        # bucket land in bucket 0, where nothing reaches its threshold; 1 and above in the last
+        np.clip(bucket, 0, len(below) - 1, out=bucket)
+        code = below[bucket]
+        code += strip >= split[bucket]
+        out[r0:r1] = code
     return out
 
 
