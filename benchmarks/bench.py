@@ -14,6 +14,21 @@ workloads  W1 (three_spheres, 400x225, 100 spp) and W2 (final_scene, ~487
            process so its JIT compilation is not counted.  Mitsuba runs twice:
            as it comes (the baseline; Russian roulette from depth 5) and with
            rr_depth past max_depth, the estimator wavefront runs.
+whole_process  W1 and W2 as a user runs them: ``wavefront render`` from launch
+           to PNG on disk against Mitsuba 3 from ``python`` launch to EXR on
+           disk (import, the scene from a JSON dict written beforehand, Dr.Jit's
+           cached kernels, render, write); medians of ``--runs`` interleaved
+           runs after a warm-up, beside the in-process figures (wavefront's
+           ``render_scene`` in a fresh process, Mitsuba's second render).
+           ``--w3`` adds W3, the cover at 1200x675 and 500 spp, one run each
+           (minutes; ``--w3-size 120x68x2`` checks the set-up quickly).
+startup    every fixed cost of one ``wavefront render`` (the 40x23, 1 spp
+           cover and W2): interpreter start, imports, arguments, YAML,
+           validation, compile, BVH, pool start, render, encode, PNG write,
+           interpreter exit, each part's median and share; imports by package
+           from ``python -X importtime``.  ``--compare-tree DIR`` measures
+           another source tree (``git archive COMMIT wavefront | tar -x -C DIR``)
+           interleaved with this one, for before/after figures.
 scaling    time per path segment for 10, 100, 1,000 and 10,000 random spheres
            (one core), with the brute-force intersector as the baseline where
            it finishes in reasonable time.
@@ -586,8 +601,9 @@ def section_budget(runs):
     tmp = Path(tempfile.mkdtemp(prefix="wavefront-bench-"))
     many = tmp / "random200k.yaml"
     write_random_scene(200_000, many)
+    # the PNG floor: ~145 MiB while PNGs were encoded by importing colour-science, ~80 MiB since
     cases = [("three_spheres 400x225, 4 spp (PNG floor)", "scenes/three_spheres.yaml", ["--spp", "4"],
-              ("160M",)),
+              ("80M",)),
              ("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", [], ("256M", "1G")),
              ("three_spheres 3840x2160, 1 spp", "scenes/three_spheres.yaml",
               ["--width", "3840", "--height", "2160", "--spp", "1"], ("256M", "1G")),
@@ -878,7 +894,7 @@ MITSUBA_WHOLE_CHILD = textwrap.dedent("""
     written = time.perf_counter()
     start = time.perf_counter()
     import numpy as np
-    np.array(mi.render(scene, seed=1))
+    np.array(mi.render(scene))  # the same kernels again: no compilation
     steady = time.perf_counter() - start
     print(json.dumps({"first": first, "imported": imported, "loaded": loaded, "written": written,
                       "steady": steady}), flush=True)
