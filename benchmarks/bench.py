@@ -970,6 +970,7 @@ def section_whole_process(runs, w3=None):
     png, exr = str(folder / "out.png"), str(folder / "out.exr")
     workloads = list(WHOLE_WORKLOADS) + ([w3] if w3 else [])
     rows, data = [], {}
+    load_before = os.getloadavg()[0]
     for label, scene, overrides in workloads:
         once = w3 is not None and (label, scene, overrides) == w3
         n = 1 if once else runs
@@ -997,15 +998,25 @@ def section_whole_process(runs, w3=None):
         if variant:
             m_wall, m_steady = med(results["mitsuba"], "wall"), med(results["mitsuba"], "steady")
             m_start = med(results["mitsuba"], "start")
+            # ratios run by run (each wavefront run against the Mitsuba run next to it), then
+            # their median: steadier than a ratio of medians when the machine's load drifts
+            whole = statistics.median(w["wall"] / m["wall"] for w, m in zip(results["wavefront"], results["mitsuba"]))
+            inner = statistics.median(w["elapsed"] / m["steady"]
+                                      for w, m in zip(results["in process"], results["mitsuba"]))
             entry.update(mitsuba_wall=m_wall, mitsuba_steady=m_steady, mitsuba_start=m_start,
-                         mitsuba_first_render=med(results["mitsuba"], "render"))
-            rows.append([label, f"{w_wall:.2f} s", f"{m_wall:.2f} s", f"**{w_wall / m_wall:.2f}x**",
-                         f"{w_in:.2f} s", f"{m_steady:.2f} s", f"{w_in / m_steady:.2f}x", n])
+                         mitsuba_first_render=med(results["mitsuba"], "render"), ratio_whole=whole,
+                         ratio_in_process=inner, runs_wavefront=results["wavefront"],
+                         runs_mitsuba=results["mitsuba"], runs_in_process=results["in process"])
+            rows.append([label, f"{w_wall:.2f} s", f"{m_wall:.2f} s", f"**{whole:.2f}x**",
+                         f"{w_in:.2f} s", f"{m_steady:.2f} s", f"{inner:.2f}x", n])
         else:
             rows.append([label, f"{w_wall:.2f} s", "–", "–", f"{w_in:.2f} s", "–", "–", n])
         data[label] = entry
     text = table(["workload", "wavefront CLI, launch to PNG", "Mitsuba, launch to EXR", "ratio",
                   "wavefront in process", "Mitsuba steady-state render", "ratio", "runs"], rows)
+    text += (f"\n\nTimes are medians; each ratio is the median of the runs' own ratios (a wavefront run "
+             f"against the Mitsuba run beside it). Load average (1 min) {load_before:.1f} before, "
+             f"{os.getloadavg()[0]:.1f} after, on {os.cpu_count()} cores.")
     return (f"Whole process: `wavefront render SCENE -o out.png` (both cores, flags for the size) from launch to "
             f"exit, against {note} from `python` launch to the EXR on disk (import, loading the scene from a "
             "JSON dict written beforehand by benchmarks/mitsuba_scene.py, Dr.Jit's cached kernels, render, "
