@@ -1022,7 +1022,8 @@ def section_whole_process(runs, w3=None):
             "JSON dict written beforehand by benchmarks/mitsuba_scene.py, Dr.Jit's cached kernels, render, "
             "write). In process, as the workloads section: wavefront's `render_scene` in a fresh process "
             "(compile and BVH included), Mitsuba's second render in the same process. After one warm-up "
-            f"of each, medians of {runs} interleaved runs (W3: one run each).\n\n{text}"), data
+            f"of each, medians of {runs} interleaved runs (W3: one run each, no warm-up: Dr.Jit may compile "
+            f"its kernels for a new image size once).\n\n{text}"), data
 
 
 def plot_scaling(data, path):
