@@ -906,22 +906,26 @@ W3 = ("W3 final_scene 1200x675, 500 spp", "scenes/final_scene.yaml",
       {"width": 1200, "height": 675, "samples_per_pixel": 500})
 
 
-def _mitsuba_spec(scene: str, overrides: dict, folder: Path) -> str:
-    """Mitsuba's dict of ``scene`` as JSON (see MITSUBA_WHOLE_CHILD), written once."""
-    code = textwrap.dedent("""
-        import json, sys, tempfile
-        args = json.loads(sys.argv[1])
-        import mitsuba as mi
-        mi.set_variant(args["variant"])
-        sys.path.insert(0, args["bench_dir"])
-        from mitsuba_scene import mitsuba_scene_dict, save_scene_dict
-        import wavefront
-        scene = wavefront.load_scene(args["scene"]).with_overrides(**args["overrides"])
-        save_scene_dict(mitsuba_scene_dict(scene, mi, workdir=args["folder"]), mi, args["out"])
-        print("{}")
-    """)
-    path = folder / f"{Path(scene).stem}_{len(list(folder.glob('*.json')))}.json"
-    return code, str(path)
+MITSUBA_SPEC_CHILD = textwrap.dedent("""
+    import json, sys
+    args = json.loads(sys.argv[1])
+    import mitsuba as mi
+    mi.set_variant(args["variant"])
+    sys.path.insert(0, args["bench_dir"])
+    from mitsuba_scene import mitsuba_scene_dict, save_scene_dict
+    import wavefront
+    scene = wavefront.load_scene(args["scene"]).with_overrides(**args["overrides"])
+    save_scene_dict(mitsuba_scene_dict(scene, mi, workdir=args["folder"]), mi, args["out"])
+    print("{}")
+""")
+
+
+def _mitsuba_spec(label: str, scene: str, overrides: dict, folder: Path, variant: str, env: dict) -> str:
+    """Write Mitsuba's dict of ``scene`` as JSON once (untimed); its path, for MITSUBA_WHOLE_CHILD."""
+    path = folder / (label.split()[0] + ".json")
+    child(MITSUBA_SPEC_CHILD, {"scene": scene, "overrides": overrides, "variant": variant, "out": str(path),
+                               "folder": str(folder), "bench_dir": str(ROOT / "benchmarks")}, env)
+    return str(path)
 
 
 def _flags(overrides: dict) -> list[str]:
@@ -974,11 +978,7 @@ def section_whole_process(runs, w3=None):
     for label, scene, overrides in workloads:
         once = w3 is not None and (label, scene, overrides) == w3
         n = 1 if once else runs
-        spec = None
-        if variant:
-            code, spec = _mitsuba_spec(scene, overrides, folder)
-            child(code, {"scene": scene, "overrides": overrides, "variant": variant, "out": spec,
-                         "folder": str(folder), "bench_dir": str(ROOT / "benchmarks")}, env)
+        spec = _mitsuba_spec(label, scene, overrides, folder, variant, env) if variant else None
         if not once:  # warm-ups: the page cache, __pycache__, Dr.Jit's kernel cache
             _wavefront_command(scene, overrides, png)
             if variant:
