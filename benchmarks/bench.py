@@ -14,6 +14,21 @@ workloads  W1 (three_spheres, 400x225, 100 spp) and W2 (final_scene, ~487
            process so its JIT compilation is not counted.  Mitsuba runs twice:
            as it comes (the baseline; Russian roulette from depth 5) and with
            rr_depth past max_depth, the estimator wavefront runs.
+whole_process  W1 and W2 as a user runs them: ``wavefront render`` from launch
+           to PNG on disk against Mitsuba 3 from ``python`` launch to EXR on
+           disk (import, the scene from a JSON dict written beforehand, Dr.Jit's
+           cached kernels, render, write); medians of ``--runs`` interleaved
+           runs after a warm-up, beside the in-process figures (wavefront's
+           ``render_scene`` in a fresh process, Mitsuba's second render).
+           ``--w3`` adds W3, the cover at 1200x675 and 500 spp, one run each
+           (minutes; ``--w3-size 120x68x2`` checks the set-up quickly).
+startup    every fixed cost of one ``wavefront render`` (the 40x23, 1 spp
+           cover and W2): interpreter start, imports, arguments, YAML,
+           validation, compile, BVH, pool start, render, encode, PNG write,
+           interpreter exit, each part's median and share; imports by package
+           from ``python -X importtime``.  ``--compare-tree DIR`` measures
+           another source tree (``git archive COMMIT wavefront | tar -x -C DIR``)
+           interleaved with this one, for before/after figures.
 scaling    time per path segment for 10, 100, 1,000 and 10,000 random spheres
            (one core), with the brute-force intersector as the baseline where
            it finishes in reasonable time.
@@ -615,8 +630,9 @@ def section_budget(runs):
     tmp = Path(tempfile.mkdtemp(prefix="wavefront-bench-"))
     many = tmp / "random200k.yaml"
     write_random_scene(200_000, many)
+    # the PNG floor: ~145 MiB while PNGs were encoded by importing colour-science, ~80 MiB since
     cases = [("three_spheres 400x225, 4 spp (PNG floor)", "scenes/three_spheres.yaml", ["--spp", "4"],
-              ("160M",)),
+              ("80M",)),
              ("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", [], ("256M", "1G")),
              ("three_spheres 3840x2160, 1 spp", "scenes/three_spheres.yaml",
               ["--width", "3840", "--height", "2160", "--spp", "1"], ("256M", "1G")),
@@ -647,6 +663,398 @@ def section_budget(runs):
             f"twice, as the budget counts them); loading, rendering and writing the PNG included.\n\n{text}"), data
 
 
+# --- start-up and whole process -----------------------------------------------
+
+# The real command (``wavefront.cli.main``) with timers around the functions
+# that make up its fixed costs; every timestamp is ``time.perf_counter()``,
+# CLOCK_MONOTONIC on Linux, the same clock in the benchmark's process, so the
+# interpreter's start (launch to this script's first line) and its exit (the
+# command's return to the process's end) are measured from outside.
+STARTUP_CHILD = textwrap.dedent("""
+    import time
+    first = time.perf_counter()
+    import json, os, sys
+    args = json.loads(sys.argv[1])
+    import wavefront.cli as cli
+    imported = time.perf_counter()
+    import importlib, multiprocessing.context
+    # by module (the package's ``wavefront.render`` is the function of that name)
+    accel, output, render, scenefile = (importlib.import_module(f"wavefront.{name}")
+                                        for name in ("accel", "output", "render", "scenefile"))
+    spans = {}
+
+    def timed(owner, name, label):
+        inner = getattr(owner, name)
+
+        def wrapper(*a, **k):
+            start = time.perf_counter()
+            try:
+                return inner(*a, **k)
+            finally:
+                spans.setdefault(label, []).append((start, time.perf_counter()))
+
+        setattr(owner, name, wrapper)
+
+    timed(cli, "main", "main")
+    timed(cli, "check_paths", "paths")
+    timed(scenefile, "load_scene", "load")
+    timed(scenefile, "read_yaml", "yaml")
+    timed(scenefile, "_scene_from_document", "validate")
+    timed(render, "compile_within", "compile")
+    timed(accel, "build_intersector", "bvh")
+    timed(render, "render_scene", "render")
+    timed(multiprocessing.context.BaseContext, "Pool", "pool")
+    timed(output, "encode_srgb8", "encode")
+    timed(output, "write_image", "write")
+    init_worker = render._init_worker
+
+    def ready(*a, **k):  # a forked worker says when it is ready for its first task
+        init_worker(*a, **k)
+        with open(os.path.join(args["ready"], str(os.getpid())), "w") as f:
+            f.write(repr(time.perf_counter()))
+
+    render._init_worker = ready
+    sys.argv = ["wavefront", *args["argv"]]
+    # what the console script runs (trees from before it existed: main)
+    status = cli.command() if hasattr(cli, "command") else cli.main()
+    print(json.dumps({"first": first, "imported": imported, "spans": spans, "status": status}), flush=True)
+    sys.exit(status)
+""")
+
+# The parts of the command, in order: (label, how to get its seconds from one run).
+STARTUP_PARTS = (
+    "interpreter start (python, site, the entry point)",
+    "imports (wavefront, NumPy, PyYAML, multiprocessing...)",
+    "arguments and output checks",
+    "scene: YAML to values (libyaml)",
+    "scene: validation to objects",
+    "scene: rest of loading (file read, flags)",
+    "compile (arrays, materials, emitters)",
+    "BVH build",
+    "pool start (fork, until every worker is ready)",
+    "render (planning, tracing, merging)",
+    "encode (8-bit sRGB)",
+    "PNG write (Pillow, compression, file, rename)",
+    "rest of the command (signals, summary)",
+    "interpreter exit",
+)
+
+# Workloads of the start-up breakdown: the issue's 0.5 s floor, then W2 as a user runs it.
+STARTUP_WORKLOADS = (
+    ("final_scene 40x23, 1 spp (the floor: <= 0.5 s)", "scenes/final_scene.yaml",
+     ["--spp", "1", "--width", "40", "--height", "23"]),
+    ("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", []),
+)
+
+
+def user_env(tree: str | None = None) -> tuple[dict, Path]:
+    """Environment and working directory of a command as a user runs it.
+
+    Bytecode is cached (``__pycache__``, as after ``pip install``), whatever
+    PYTHONDONTWRITEBYTECODE says here: without it every process compiles
+    wavefront's modules again (~50 ms).  ``tree``: run the wavefront source
+    tree in that folder instead (first on ``sys.path``).
+    """
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    if tree is None:
+        return env, ROOT
+    env["PYTHONPATH"] = tree
+    return env, Path(tree)  # python -c puts the working directory first on sys.path
+
+
+def _span(spans, label):
+    return sum(b - a for a, b in spans.get(label, ()))
+
+
+def startup_run(scene: str, flags: list[str], out: str, tree: str | None = None) -> dict:
+    """One ``wavefront render`` under STARTUP_CHILD; seconds of each of STARTUP_PARTS.
+
+    ``tree``: a source tree of wavefront to run instead of this one (its
+    ``wavefront/`` first on ``sys.path``), for before/after comparisons.
+    """
+    import tempfile
+    import time
+
+    ready = tempfile.mkdtemp(prefix="wavefront-ready-")
+    env, cwd = user_env(tree)
+    argv = ["render", str(ROOT / scene), "-o", out, *flags]
+    launch = time.perf_counter()
+    proc = subprocess.run([PYTHON, "-c", STARTUP_CHILD, json.dumps({"argv": argv, "ready": ready})],
+                          capture_output=True, text=True, cwd=cwd, env=env, timeout=3600)
+    exited = time.perf_counter()
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "child failed")
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    spans = r["spans"]
+    workers_ready = []
+    for name in os.listdir(ready):
+        with open(os.path.join(ready, name)) as f:
+            workers_ready.append(float(f.read()))
+        os.unlink(os.path.join(ready, name))
+    os.rmdir(ready)
+    pool = (max(workers_ready) - spans["pool"][0][0]) if workers_ready and "pool" in spans else 0.0
+    (main_start, main_end), = spans["main"]
+    parts = [r["first"] - launch, r["imported"] - r["first"], _span(spans, "paths"), _span(spans, "yaml"),
+             _span(spans, "validate"), None, _span(spans, "compile") - _span(spans, "bvh"), _span(spans, "bvh"),
+             pool, _span(spans, "render") - pool, _span(spans, "encode"),
+             _span(spans, "write") - _span(spans, "encode"), None, exited - main_end]
+    load = _span(spans, "load") - _span(spans, "yaml") - _span(spans, "validate")
+    parts[5] = load
+    inside = sum(p for p in parts[2:12])
+    parts[12] = (main_end - main_start) - inside
+    parts[1] += main_start - r["imported"]  # the timers' own set-up: negligible, but not lost
+    return {"parts": parts, "total": exited - launch}
+
+
+IMPORT_GROUPS = ("numpy", "wavefront", "yaml", "PIL", "imageio", "multiprocessing", "colour", "scipy")
+
+
+def import_breakdown(scene: str, flags: list[str], out: str, tree: str | None = None) -> dict:
+    """Self time of every module the command imports, by top-level package,
+    from ``python -X importtime`` (which slows imports down: read shares)."""
+    env, cwd = user_env(tree)
+    code = "import sys, wavefront.cli; sys.exit(wavefront.cli.main(sys.argv[1:]))"
+    proc = subprocess.run([PYTHON, "-X", "importtime", "-c", code, "render", str(ROOT / scene), "-o", out, *flags],
+                          capture_output=True, text=True, cwd=cwd, env=env, timeout=3600)
+    groups: dict[str, float] = {}
+    for line in proc.stderr.splitlines():
+        if not line.startswith("import time:") or "self [us]" in line:
+            continue
+        self_us, _, name = (x.strip() for x in line[len("import time:"):].split("|"))
+        top = name.split(".")[0]
+        group = top if top in IMPORT_GROUPS else ("other packages" if _third_party(top) else "standard library")
+        groups[group] = groups.get(group, 0.0) + int(self_us) / 1e6
+    return groups
+
+
+def _third_party(top: str) -> bool:
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        return False
+    return bool(spec and spec.origin and "site-packages" in spec.origin)
+
+
+def section_startup(runs, tree: str | None = None):
+    """Every fixed cost of ``wavefront render``, each part's share; with
+    ``tree``, the same for another source tree, interleaved run by run."""
+    import tempfile
+
+    out = str(Path(tempfile.mkdtemp(prefix="wavefront-startup-")) / "out.png")
+    trees = [("this tree", None)] + ([(f"{tree}", tree)] if tree else [])
+    data, text = {}, []
+    for label, scene, flags in STARTUP_WORKLOADS:
+        startup_run(scene, flags, out)  # warm the page cache and __pycache__
+        for _, t in trees[1:]:
+            startup_run(scene, flags, out, t)
+        results = {name: [] for name, _ in trees}
+        for _ in range(runs):  # interleaved, so both trees see the same machine load
+            for name, t in trees:
+                results[name].append(startup_run(scene, flags, out, t))
+        medians = {name: {"parts": [statistics.median(r["parts"][i] for r in rs) for i in range(len(STARTUP_PARTS))],
+                          "total": statistics.median(r["total"] for r in rs)} for name, rs in results.items()}
+        data[label] = medians
+        header = ["part"]
+        for name, _ in trees:
+            header += [f"{name}: seconds", "share"]
+        rows = []
+        for i, part in enumerate(STARTUP_PARTS):
+            row = [part]
+            for name, _ in trees:
+                m = medians[name]
+                row += [f"{m['parts'][i]:.3f}", f"{m['parts'][i] / m['total'] * 100:.0f} %"]
+            rows.append(row)
+        total = ["**total, launch to exit**"]
+        for name, _ in trees:
+            total += [f"**{medians[name]['total']:.3f}**", "100 %"]
+        rows.append(total)
+        text.append(f"`wavefront render {scene} {' '.join(flags)} -o out.png`, {label}; medians of {runs} runs "
+                    f"(each part's median; the total is the median of the totals):\n\n" + table(header, rows))
+    # imports by package, for the first workload
+    label, scene, flags = STARTUP_WORKLOADS[0]
+    groups = {name: [] for name, _ in trees}
+    for _ in range(runs):
+        for name, t in trees:
+            groups[name].append(import_breakdown(scene, flags, out, t))
+    names = sorted({g for gs in groups.values() for r in gs for g in r},
+                   key=lambda g: -statistics.median(r.get(g, 0.0) for r in groups["this tree"]))
+    header, rows = ["package (self time of its modules)"], []
+    for name, _ in trees:
+        header += [f"{name}: ms", "share"]
+    for g in names:
+        row = [g]
+        for name, _ in trees:
+            value = statistics.median(r.get(g, 0.0) for r in groups[name])
+            whole = statistics.median(sum(r.values()) for r in groups[name])
+            row += [f"{value * 1e3:.0f}", f"{value / whole * 100:.0f} %"]
+        rows.append(row)
+    data["imports"] = {name: gs for name, gs in groups.items()}
+    text.append(f"Imports of `wavefront render {scene} {' '.join(flags)}` by package, from `python -X importtime` "
+                f"(which slows every import: read the shares; medians of {runs} runs):\n\n" + table(header, rows))
+    intro = ("Each part of one `wavefront render` process: the command itself (`wavefront.cli.main`) with timers "
+             "around its functions, the interpreter's start and exit measured from outside on the same clock. "
+             "The pool start overlaps nothing: the render starts its tasks when the workers are ready; it is "
+             "counted apart from the render.")
+    return intro + "\n\n" + "\n\n".join(text), data
+
+
+# Mitsuba from ``python`` launch to an EXR on disk: import, the scene (a JSON
+# dict written by benchmarks/mitsuba_scene.py beforehand, so that neither
+# wavefront nor its YAML is part of Mitsuba's time), Dr.Jit's cached kernels,
+# the render, the write.  It prints when the EXR was on disk, then renders once
+# more (steady state, its in-process figure), which the whole-process time
+# does not include.
+MITSUBA_WHOLE_CHILD = textwrap.dedent("""
+    import time
+    first = time.perf_counter()
+    import json, sys
+    args = json.loads(sys.argv[1])
+    import mitsuba as mi
+    mi.set_variant(args["variant"])
+    sys.path.insert(0, args["bench_dir"])
+    from mitsuba_scene import load_scene_dict
+    imported = time.perf_counter()
+    scene = mi.load_dict(load_scene_dict(args["scene"], mi))
+    loaded = time.perf_counter()
+    image = mi.render(scene)
+    mi.Bitmap(image).write(args["out"])
+    written = time.perf_counter()
+    start = time.perf_counter()
+    import numpy as np
+    np.array(mi.render(scene))  # the same kernels again: no compilation
+    steady = time.perf_counter() - start
+    print(json.dumps({"first": first, "imported": imported, "loaded": loaded, "written": written,
+                      "steady": steady}), flush=True)
+""")
+
+WHOLE_WORKLOADS = (("W1 three_spheres 400x225, 100 spp", "scenes/three_spheres.yaml", {}),
+                   ("W2 final_scene 400x225, 10 spp", "scenes/final_scene.yaml", {}))
+W3 = ("W3 final_scene 1200x675, 500 spp", "scenes/final_scene.yaml",
+      {"width": 1200, "height": 675, "samples_per_pixel": 500})
+
+
+MITSUBA_SPEC_CHILD = textwrap.dedent("""
+    import json, sys
+    args = json.loads(sys.argv[1])
+    import mitsuba as mi
+    mi.set_variant(args["variant"])
+    sys.path.insert(0, args["bench_dir"])
+    from mitsuba_scene import mitsuba_scene_dict, save_scene_dict
+    import wavefront
+    scene = wavefront.load_scene(args["scene"]).with_overrides(**args["overrides"])
+    save_scene_dict(mitsuba_scene_dict(scene, mi, workdir=args["folder"]), mi, args["out"])
+    print("{}")
+""")
+
+
+def _mitsuba_spec(label: str, scene: str, overrides: dict, folder: Path, variant: str, env: dict) -> str:
+    """Write Mitsuba's dict of ``scene`` as JSON once (untimed); its path, for MITSUBA_WHOLE_CHILD."""
+    path = folder / (label.split()[0] + ".json")
+    child(MITSUBA_SPEC_CHILD, {"scene": scene, "overrides": overrides, "variant": variant, "out": str(path),
+                               "folder": str(folder), "bench_dir": str(ROOT / "benchmarks")}, env)
+    return str(path)
+
+
+def _flags(overrides: dict) -> list[str]:
+    names = {"width": "--width", "height": "--height", "samples_per_pixel": "--spp"}
+    return [x for k, v in overrides.items() for x in (names[k], str(v))]
+
+
+def _wavefront_command(scene: str, overrides: dict, out: str) -> dict:
+    """``wavefront render`` as a user runs it (stderr is a pipe: no progress bar); wall time and the
+    render time of its summary."""
+    import time
+
+    env, cwd = user_env()
+    argv = [str(Path(PYTHON).parent / "wavefront"), "render", str(ROOT / scene), "-o", out, *_flags(overrides)]
+    start = time.perf_counter()
+    proc = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env, timeout=7200)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "wavefront failed")
+    line = proc.stderr.strip().splitlines()[-1]
+    render = float(line.split("render ")[1].split(" s")[0])
+    return {"wall": wall, "render": render}
+
+
+def _mitsuba_command(spec: str, variant: str, env: dict, out: str) -> dict:
+    import time
+
+    launch = time.perf_counter()
+    r = child(MITSUBA_WHOLE_CHILD, {"scene": spec, "variant": variant, "out": out,
+                                    "bench_dir": str(ROOT / "benchmarks")}, env)
+    return {"wall": r["written"] - launch, "render": r["written"] - r["loaded"], "steady": r["steady"],
+            "start": r["loaded"] - launch}
+
+
+def section_whole_process(runs, w3=None):
+    """W1 and W2 as a user runs them: launch to image on disk, wavefront's CLI
+    against Mitsuba's whole process, medians of interleaved runs; beside
+    them the in-process figures (wavefront's ``render_scene`` in a fresh
+    process, as the workloads section; Mitsuba's steady-state render)."""
+    import tempfile
+
+    variant, env, note = mitsuba_setup()
+    if env is not None:  # both renderers with their bytecode cached, as a user runs them
+        env = {k: v for k, v in env.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    folder = Path(tempfile.mkdtemp(prefix="wavefront-whole-"))
+    png, exr = str(folder / "out.png"), str(folder / "out.exr")
+    workloads = list(WHOLE_WORKLOADS) + ([w3] if w3 else [])
+    rows, data = [], {}
+    load_before = os.getloadavg()[0]
+    for label, scene, overrides in workloads:
+        once = w3 is not None and (label, scene, overrides) == w3
+        n = 1 if once else runs
+        spec = _mitsuba_spec(label, scene, overrides, folder, variant, env) if variant else None
+        if not once:  # warm-ups: the page cache, __pycache__, Dr.Jit's kernel cache
+            _wavefront_command(scene, overrides, png)
+            if variant:
+                _mitsuba_command(spec, variant, env, exr)
+        results = {"wavefront": [], "in process": [], "mitsuba": []}
+        for _ in range(n):
+            results["wavefront"].append(_wavefront_command(scene, overrides, png))
+            if variant:
+                results["mitsuba"].append(_mitsuba_command(spec, variant, env, exr))
+            results["in process"].append(child(WAVEFRONT_CHILD, {"scene": scene, "overrides": overrides},
+                                               user_env()[0]))
+        med = lambda rs, key: statistics.median(r[key] for r in rs)  # noqa: E731
+        w_wall, w_render = med(results["wavefront"], "wall"), med(results["wavefront"], "render")
+        w_in = med(results["in process"], "elapsed")
+        entry = {"wavefront_wall": w_wall, "wavefront_render": w_render, "wavefront_in_process": w_in,
+                 "runs": n}
+        if variant:
+            m_wall, m_steady = med(results["mitsuba"], "wall"), med(results["mitsuba"], "steady")
+            m_start = med(results["mitsuba"], "start")
+            # ratios run by run (each wavefront run against the Mitsuba run next to it), then
+            # their median: steadier than a ratio of medians when the machine's load drifts
+            whole = statistics.median(w["wall"] / m["wall"] for w, m in zip(results["wavefront"], results["mitsuba"]))
+            inner = statistics.median(w["elapsed"] / m["steady"]
+                                      for w, m in zip(results["in process"], results["mitsuba"]))
+            entry.update(mitsuba_wall=m_wall, mitsuba_steady=m_steady, mitsuba_start=m_start,
+                         mitsuba_first_render=med(results["mitsuba"], "render"), ratio_whole=whole,
+                         ratio_in_process=inner, runs_wavefront=results["wavefront"],
+                         runs_mitsuba=results["mitsuba"], runs_in_process=results["in process"])
+            rows.append([label, f"{w_wall:.2f} s", f"{m_wall:.2f} s", f"**{whole:.2f}x**",
+                         f"{w_in:.2f} s", f"{m_steady:.2f} s", f"{inner:.2f}x", n])
+        else:
+            rows.append([label, f"{w_wall:.2f} s", "–", "–", f"{w_in:.2f} s", "–", "–", n])
+        data[label] = entry
+    text = table(["workload", "wavefront CLI, launch to PNG", "Mitsuba, launch to EXR", "ratio",
+                  "wavefront in process", "Mitsuba steady-state render", "ratio", "runs"], rows)
+    text += (f"\n\nTimes are medians; each ratio is the median of the runs' own ratios (a wavefront run "
+             f"against the Mitsuba run beside it). Load average (1 min) {load_before:.1f} before, "
+             f"{os.getloadavg()[0]:.1f} after, on {os.cpu_count()} cores.")
+    return (f"Whole process: `wavefront render SCENE -o out.png` (both cores, flags for the size) from launch to "
+            f"exit, against {note} from `python` launch to the EXR on disk (import, loading the scene from a "
+            "JSON dict written beforehand by benchmarks/mitsuba_scene.py, Dr.Jit's cached kernels, render, "
+            "write). In process, as the workloads section: wavefront's `render_scene` in a fresh process "
+            "(compile and BVH included), Mitsuba's second render in the same process. After one warm-up "
+            f"of each, medians of {runs} interleaved runs (W3: one run each, no warm-up: Dr.Jit may compile "
+            f"its kernels for a new image size once).\n\n{text}"), data
+
+
 def plot_scaling(data, path):
     try:
         import matplotlib
@@ -672,19 +1080,32 @@ def plot_scaling(data, path):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--section", choices=("all", "workloads", "geometry", "next_week", "equal_error", "scaling",
-                                              "memory", "budget", "capacity", "distributed"),
+    parser.add_argument("--section", choices=("all", "workloads", "whole_process", "startup", "geometry", "next_week",
+                                              "equal_error", "scaling", "memory", "budget", "capacity", "distributed"),
                         default="all")
+    parser.add_argument("--compare-tree", metavar="DIR",
+                        help="startup: also measure the wavefront source tree in DIR (e.g. an older commit's "
+                             "`git archive`), interleaved run by run")
+    parser.add_argument("--w3", action="store_true",
+                        help="whole_process: add W3, the cover at 1200x675 and 500 spp, one run each (minutes)")
+    parser.add_argument("--w3-size", metavar="WxHxSPP", default="1200x675x500",
+                        help="W3's width, height and samples per pixel (a smaller one checks the set-up)")
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    sections = (("workloads", "geometry", "next_week", "equal_error", "scaling", "memory", "budget", "capacity",
-                 "distributed")
+    sections = (("workloads", "whole_process", "startup", "geometry", "next_week", "equal_error", "scaling", "memory",
+                 "budget", "capacity", "distributed")
                 if args.section == "all"
                 else (args.section,))
+    w3 = None
+    if args.w3:
+        width, height, spp = (int(x) for x in args.w3_size.split("x"))
+        w3 = (f"W3 final_scene {width}x{height}, {spp} spp", W3[1],
+              {"width": width, "height": height, "samples_per_pixel": spp})
+    options = {"startup": {"tree": args.compare_tree}, "whole_process": {"w3": w3}}
     everything = {}
     for name in sections:
         print(f"\n## {name}\n", flush=True)
-        text, data = globals()[f"section_{name}"](args.runs)
+        text, data = globals()[f"section_{name}"](args.runs, **options.get(name, {}))
         print(text, flush=True)
         (RESULTS / f"{name}.md").write_text(text + "\n")
         everything[name] = data

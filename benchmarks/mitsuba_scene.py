@@ -205,3 +205,42 @@ def triangle_files(scene, workdir):
         trimesh.Trimesh(vertices, mesh.faces, vertex_normals=normals, process=False).export(path)
         out.append((mesh.material, path, mesh.smooth))
     return out
+
+
+def save_scene_dict(doc, mi, path):
+    """Write Mitsuba's dict as JSON, for a process that loads it without
+    wavefront: transforms as 4x4 matrices, bitmaps as ``.npy`` files next to
+    ``path`` (Mitsuba 3 has no writer of its XML format)."""
+    import json
+    import os
+
+    def plain(value, key):
+        if isinstance(value, dict):
+            return {k: plain(v, f"{key}_{k}") for k, v in value.items()}
+        if isinstance(value, mi.ScalarTransform4f):
+            return {"__transform__": np.array(value.matrix, dtype=np.float64).tolist()}
+        if isinstance(value, mi.Bitmap):
+            file = os.path.splitext(path)[0] + f"{key}.npy"
+            np.save(file, np.array(value))
+            return {"__bitmap__": file}
+        return value
+
+    with open(path, "w") as f:
+        json.dump(plain(doc, ""), f)
+
+
+def load_scene_dict(path, mi):
+    """The dict :func:`save_scene_dict` wrote, with Mitsuba's objects rebuilt."""
+    import json
+
+    def rebuild(value):
+        if isinstance(value, dict):
+            if "__transform__" in value:
+                return mi.ScalarTransform4f(value["__transform__"])
+            if "__bitmap__" in value:
+                return mi.Bitmap(np.load(value["__bitmap__"]))
+            return {k: rebuild(v) for k, v in value.items()}
+        return value
+
+    with open(path) as f:
+        return rebuild(json.load(f))

@@ -128,6 +128,14 @@ def test_version():
     assert r.returncode == 0 and r.stdout.startswith("wavefront ") and r.stdout.split()[1][0].isdigit()
 
 
+def test_version_is_the_installed_packages():
+    """The command reads wavefront.__version__ (importlib.metadata costs ~15 ms a
+    run); pyproject.toml takes the version from there, so the two agree."""
+    from importlib.metadata import version
+
+    assert run("--version").stdout.split()[1] == version("wavefront")
+
+
 def test_summary_gives_render_and_total_time(tmp_path):
     r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "a.png", *SMALL)
     assert r.returncode == 0, r.stderr

@@ -194,3 +194,68 @@ def test_a_full_disk_while_writing_an_exr_is_an_oserror(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="No space left"):
         write_image(str(tmp_path / "x.exr"), IMAGE)
     assert not list(tmp_path.iterdir())
+
+
+# --- 8-bit sRGB: the shipped table is colour-science's encoding ------------------
+
+def _table_script():
+    """wavefront/data/make_srgb8_thresholds.py, which computes the table with colour-science."""
+    from wavefront.data import make_srgb8_thresholds
+
+    return make_srgb8_thresholds
+
+
+def test_the_srgb8_table_is_what_colour_science_gives_today():
+    """Recomputed by bisection with the installed colour-science: a newer
+    colour-science that changed its sRGB function would fail here."""
+    from wavefront.output import srgb8_thresholds
+
+    np.testing.assert_array_equal(_table_script().thresholds(), srgb8_thresholds())
+
+
+def _neighbours(values: np.ndarray, dtype, reach: int) -> np.ndarray:
+    """Every float of ``dtype`` within ``reach`` steps of each of ``values`` (positive)."""
+    ints = {np.float64: np.int64, np.float32: np.int32}[dtype]
+    bits = values.astype(dtype).view(ints)
+    return (bits[:, None] + np.arange(-reach, reach + 1, dtype=ints)[None, :]).ravel().view(dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_encode_srgb8_is_colour_sciences_encoding_bit_for_bit(dtype):
+    """Every threshold and thousands of float neighbours on each side (where a
+    rounding difference would show), a dense and a random sweep of [-0.1, 1.1],
+    and the special values, against colour-science's own function."""
+    from wavefront.output import encode_srgb8, srgb8_thresholds
+
+    reference = _table_script().colour_srgb8
+    thresholds = srgb8_thresholds()
+    rng = np.random.default_rng(5)
+    special = np.array([np.nan, -np.nan, np.inf, -np.inf, 0.0, -0.0, -1e-300, 5e-324, -5e-324, 1e-45,
+                        np.finfo(dtype).tiny, 0.0031308, 1.0, np.nextafter(1.0, 2.0), 1.5, -1.0, 1e30,
+                        -1e30, np.finfo(dtype).max, -np.finfo(dtype).max], dtype=dtype)
+    values = np.concatenate([
+        _neighbours(thresholds, dtype, 2048), special, np.linspace(-0.1, 1.1, 1_000_001, dtype=dtype),
+        rng.random(1_000_000).astype(dtype), (rng.random(100_000) * 0.01).astype(dtype)])
+    values = values[: values.size // 3 * 3]
+    image = values.reshape(-1, 1, 3)  # (H, 1, 3): many strips of ENCODE_ROWS rows
+    np.testing.assert_array_equal(encode_srgb8(image), reference(image))
+    # codes step exactly at the thresholds
+    codes = encode_srgb8(np.repeat(thresholds[:, None, None], 3, axis=2))[:, 0, 0]
+    below = encode_srgb8(np.repeat(np.nextafter(thresholds, 0)[:, None, None], 3, axis=2))[:, 0, 0]
+    np.testing.assert_array_equal(codes, np.arange(1, 256))
+    np.testing.assert_array_equal(below, np.arange(0, 255))
+
+
+def test_a_png_is_written_without_importing_colour_science(tmp_path):
+    """The point of the table: colour-science costs ~0.7 s and ~90 MiB to import."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from wavefront.output import write_image; "
+            f"write_image({str(tmp_path / 'x.png')!r}, np.full((3, 4, 3), 0.5, np.float32)); "
+            "print('colour' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    import imageio.v3 as iio
+
+    assert (iio.imread(tmp_path / "x.png") == 188).all()  # rint(255 * 0.735357)

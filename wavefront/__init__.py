@@ -4,6 +4,8 @@
 >>> image = render(load_scene("scenes/three_spheres.yaml"))  # (H, W, 3) linear float32
 """
 
+__version__ = "0.1.0"  # the package's version (pyproject.toml reads it from here)
+
 from . import distributed  # so wavefront.distributed.dask_executor works after "import wavefront"
 from .background import Sky, Solid
 from .camera import Camera

@@ -10,13 +10,12 @@ costs the tasks it held: Dask reschedules them and their results are the same.
 The scene travels once per worker: it is scattered with ``broadcast=True`` and
 each worker compiles it once (cached by a token), not once per task.
 
-Nothing here is imported unless ``--scheduler`` is given.
+Dask itself is imported only when ``--scheduler`` is given (and logging and
+uuid only with it: ``import wavefront`` imports this module, and every command
+would pay for them).
 """
 
 from __future__ import annotations
-
-import logging
-import uuid
 
 from .render import POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute, tune_allocator
 from .sampling import scene_key
@@ -41,6 +40,8 @@ def connect(scheduler: str):
                 raise ValueError
         except ValueError:
             raise SchedulerError(f"{scheduler}: expected local:N with N >= 1 workers") from None
+        import logging
+
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.ERROR)
         return Client(cluster)
@@ -69,6 +70,8 @@ def dask_executor(client):
     from dask.distributed import wait
 
     def run(scene, capacity, tasks, merge, stopped):
+        import uuid
+
         token = uuid.uuid4().hex  # names this render's tasks and its cached scene
         scene_future = client.scatter(scene, broadcast=True, hash=False)
         # A window of tasks in flight, a few per worker, refilled as results

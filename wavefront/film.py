@@ -15,7 +15,6 @@ import os
 import stat
 import struct
 import tempfile
-import zipfile
 
 import numpy as np
 
@@ -138,7 +137,7 @@ def save_checkpoint(path: str, scene, film: Film, units_done: int) -> None:
         raise
 
 
-def _member_header(archive: zipfile.ZipFile, name: str):
+def _member_header(archive, name: str):
     """(shape, dtype) of an ``.npy`` member, read from its header alone, so a
     hostile file cannot make us allocate before it is checked."""
     with archive.open(name + ".npy") as f:
@@ -167,6 +166,8 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
         raise CheckpointError(f"{path}: cannot read: {e.strerror or e}") from None
     if not stat.S_ISREG(mode):
         raise CheckpointError(f"{path}: not a regular file")
+    import zipfile  # only resuming needs it (np.savez imports it itself when saving)
+
     expected = {"fingerprint": None, "units_done": ((), np.dtype(np.int64)),
                 "sum": ((3, scene.width * scene.height), np.dtype(np.float64)),
                 "count": ((scene.width * scene.height,), np.dtype(np.uint32))}

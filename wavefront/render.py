@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import collections
 import itertools
-import multiprocessing
 import os
 import signal
 import threading
@@ -542,6 +541,8 @@ def _run_inline(cs, capacity, tasks, merge, stopped) -> None:
 
 
 def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
+    import multiprocessing  # here: a render of one task (or one worker) runs inline and never needs it
+
     fork = "fork" in multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if fork else "spawn")
     # Forked workers inherit the scene compiled and the key derived here:
