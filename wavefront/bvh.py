@@ -60,9 +60,6 @@ TRAVERSAL_BATCH = 8192
 # (1e-5 of a 12-unit scene).
 BOX_PAD = 2.0 ** -20
 ROUNDING_PAD = 64
-# The float32 pass of the leaf test grows each radius by this many box pads:
-# its own rounding (a few float32 epsilons of the extent) is below one.
-LEAF_PAD = 4
 # Spheres with a radius above OUTSIZED times the median (at most MAX_OUTSIZED
 # of them, largest first) are tested outside the tree.  Such a sphere has 16x
 # the surface of a typical one, so it is hit often and testing every ray
@@ -226,14 +223,17 @@ class BVH:
         pad += self.primitives.pad + float(np.finfo(f32).tiny)
         # the root box, padded alike, clips rays in the scene's precision
         self.root_box = np.concatenate((boxes[:3, :1] - pad, boxes[3:, :1] + pad))
-        # leaves' bounding spheres in float32 for the first, conservative pass of the leaf test;
-        # NaN in padding slots fails every comparison
+        # each leaf slot's own primitive box, padded like the nodes' and rounded outwards, for
+        # the leaf test's float32 pass: a hit of the exact test lies in its primitive's box
+        # exactly as it lies in every ancestor's, so this culls nothing a node box would
+        # keep.  Rows are lo x, y, z then hi x, y, z, LEAF_SIZE slots each; NaN in padding
+        # slots fails the test (see test_leaves)
         real = self.leaf_slot >= 0
         slot = np.maximum(self.leaf_slot, 0)
-        center = self.bound_center[:, slot]
-        self.leaf_center32 = np.where(real, center, np.nan).astype(f32)  # (3, LEAF_SIZE, K)
-        reach = self.bound_radius[slot] + LEAF_PAD * pad
-        self.leaf_reach32 = float32_up(np.where(real, reach, np.nan))
+        prim_lo, prim_hi = self.primitives.bounds()
+        slot_lo = np.where(real, float32_down(prim_lo[:, slot] - pad), np.nan)  # (3, LEAF_SIZE, K)
+        slot_hi = np.where(real, float32_up(prim_hi[:, slot] + pad), np.nan)
+        self.leaf_boxes32 = np.concatenate((slot_lo, slot_hi)).astype(f32).reshape(6 * LEAF_SIZE, k)
         lo, hi = float32_down(boxes[:3] - pad), float32_up(boxes[3:] + pad)  # rounded outwards
         left = np.maximum(self.child, 0)
         right = left + (self.child >= 0)
@@ -252,9 +252,7 @@ class BVH:
         self.node_major = k > NODE_MAJOR_NODES
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (8K, 12)
-            self.leaf_rows32 = np.ascontiguousarray(np.concatenate(
-                (self.leaf_center32.reshape(3 * LEAF_SIZE, k), self.leaf_reach32)).T)  # (K, 4 LEAF_SIZE)
-            self.leaf_center32 = self.leaf_reach32 = None
+            self.leaf_boxes32 = np.ascontiguousarray(self.leaf_boxes32.T)  # (K, 6 LEAF_SIZE)
             self.leaf_primitive = np.ascontiguousarray(self.leaf_primitive.reshape(LEAF_SIZE, k).T).ravel()
 
     # -- traversal -----------------------------------------------------------
@@ -344,35 +342,32 @@ class BVH:
         to_beat = float32_up(nearest - shift)  # the best hit so far in the traversal's frame
         found = []
 
-        d32 = d.astype(f32)
-        origin32 = rays[:3]
         k = self.child.size
 
         def test_leaves(ray, node):
             """Test (ray, leaf) pairs against their leaves' primitives.
 
-            A float32 pass in the traversal's frame over all (LEAF_SIZE, P)
-            (ray, primitive) slots keeps those whose line passes within a
-            padded bounding radius and whose span overlaps [0, to_beat];
-            padding slots are NaN and never kept.  Only the kept slots,
-            typically a few in ten, are tested with brute force's arithmetic
-            in the scene's precision.
+            A float32 slab test in the traversal's frame of every (ray,
+            primitive) slot against the primitive's own padded box keeps
+            those the ray enters before ``to_beat``; padding slots are NaN
+            and never kept.  Only the kept slots, typically a few in ten,
+            are tested with brute force's arithmetic in the scene's
+            precision.
             """
             if self.node_major:
-                rows = np.take(self.leaf_rows32, node, axis=0, mode="wrap").T  # (4 LEAF_SIZE, P)
-                center, reach = rows[:3 * LEAF_SIZE].reshape(3, LEAF_SIZE, -1), rows[3 * LEAF_SIZE:]
+                b = np.take(self.leaf_boxes32, node, axis=0, mode="wrap").T  # (6 LEAF_SIZE, P)
             else:
-                center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, LEAF_SIZE, P)
-                reach = np.take(self.leaf_reach32, node, axis=1, mode="wrap")  # padded radius
-            oc = center - np.take(origin32, ray, axis=1, mode="wrap")[:, None, :]
-            dr = np.take(d32, ray, axis=1, mode="wrap")[:, None, :]
-            h = dr[0] * oc[0]
-            h += dr[1] * oc[1]
-            h += dr[2] * oc[2]
-            oc -= h * dr  # now l, the centre's offset from the line
-            oc *= oc
-            candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
-            candidate &= h - reach <= to_beat.take(ray)
+                b = np.take(self.leaf_boxes32, node, axis=1, mode="wrap")
+            b = b.reshape(2, 3, LEAF_SIZE, -1)  # lo/hi, axis, slot, pair
+            r = np.take(rays, ray, axis=1, mode="wrap")[:, None, :]
+            b -= r[:3]
+            b *= r[3:]
+            near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
+            entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), zero)
+            # np.minimum, not fmin, at the end: a padding slot's NaN must survive to fail the test
+            # (a real box is never NaN on all three axes: its planes differ on each)
+            leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
+            candidate = entry <= leave
             slot = np.flatnonzero(candidate)  # j * P + pair for primitive j of pair's leaf
             pair = slot % ray.size
             if self.node_major:  # slot j of node k at k * LEAF_SIZE + j
@@ -390,13 +385,13 @@ class BVH:
                 to_beat[ray] = float32_up(nearest.take(ray) - shift.take(ray))
             found.append((ray_ids.take(ray), t, prim))
 
+        zero = f32(0)
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_leaves(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2)
         node = octant * k  # the root's column in each ray's octant
-        zero = f32(0)
         # (ray, interior node) pairs whose box the ray enters; both children's
         # boxes are tested at once so each level gathers the ray data once
         depth = 0  # of the pairs' nodes
