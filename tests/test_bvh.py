@@ -47,13 +47,16 @@ def mixed_scene(rng, counts, spread, extent):
 
 
 def node_major_bvh(prims, extent):
-    """A BVH with its tables stored node-major, as big trees are, whatever its size."""
+    """A BVH with its tables stored node-major, as big trees are, and testing
+    leaves in nearest-first rounds, as when rays reach many leaves, whatever its size."""
     saved = bvh_module.NODE_MAJOR_NODES
     bvh_module.NODE_MAJOR_NODES = 0
     try:
-        return BVH(prims, extent)
+        bvh = BVH(prims, extent)
     finally:
         bvh_module.NODE_MAJOR_NODES = saved
+    bvh.leaf_rounds_above = 0
+    return bvh
 
 
 def assert_same_hits(prims, origin, direction, t_max, extent=None):
