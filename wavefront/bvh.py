@@ -55,8 +55,11 @@ LEAF_ROUNDS = 6
 LEAF_ROUNDS_ABOVE = 2
 # Rays traversed together: the (ray, node) pairs of one level and their
 # temporaries then stay in L2, which measured ~2.5x faster per pair than at
-# 65,536 rays (about 8 % on W2 end to end; see benchmarks/bench.py).
-TRAVERSAL_BATCH = 8192
+# 65,536 rays (about 8 % on W2 end to end; see benchmarks/bench.py).  4096
+# against 8192, interleaved in one process on the shared 2-core machine:
+# intersection 13-15 % faster on W2, the 1k- and the 1M-triangle terrain
+# (2048 was within noise of 4096).
+TRAVERSAL_BATCH = 4096
 # Boxes grow on every side by the larger of two margins.  BOX_PAD of the
 # tree's extent covers float32 traversal: rounding of a shifted origin and of
 # (plane - origin) * (1 / d) moves a computed slab entry by at most ~2**-21 of
