@@ -431,21 +431,34 @@ class BVH:
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2)
         node = octant * k  # the root's column in each ray's octant
+        if self.node_major:  # each ray's origin and 1 / d, x y z four times: one row per ray
+            origin12 = np.tile(rays[:3].T, 4)
+            inverse12 = np.tile(rays[3:].T, 4)
         # (ray, interior node) pairs whose box the ray enters; both children's
         # boxes are tested at once so each level gathers the ray data once
         depth = 0  # of the pairs' nodes
         while ray.size:
             pairs = ray.size
             # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
-            r = np.take(rays, ray, axis=1, mode="wrap")
             if self.node_major:
-                t = np.take(self.octant_boxes, node, axis=0, mode="wrap").T.reshape(2, 2, 3, pairs)
+                # pair-major arithmetic: (P, 12) rows with ray rows tiled to match, so the two
+                # big operations run contiguously (on the transposed view they ran strided,
+                # a third of the walk)
+                t = np.take(self.octant_boxes, node, axis=0, mode="wrap")  # (P, 12): child, enter/leave, axis
+                t -= np.take(origin12, ray, axis=0, mode="wrap")
+                t *= np.take(inverse12, ray, axis=0, mode="wrap")
+                beat = to_beat.take(ray)
+                entry, leave = np.empty((2, pairs), dtype=f32), np.empty((2, pairs), dtype=f32)
+                for c in (0, 6):
+                    np.fmax(np.fmax(np.fmax(t[:, c], t[:, c + 1]), t[:, c + 2]), zero, out=entry[c // 6])
+                    np.fmin(np.fmin(np.fmin(t[:, c + 3], t[:, c + 4]), t[:, c + 5]), beat, out=leave[c // 6])
             else:
+                r = np.take(rays, ray, axis=1, mode="wrap")
                 t = np.take(self.octant_boxes, node, axis=1, mode="wrap").reshape(2, 2, 3, pairs)  # child, enter/leave, axis
-            t -= r[:3]
-            t *= r[3:]
-            entry = np.fmax(np.fmax(np.fmax(t[:, 0, 0], t[:, 0, 1]), t[:, 0, 2]), zero)
-            leave = np.fmin(np.fmin(np.fmin(t[:, 1, 0], t[:, 1, 1]), t[:, 1, 2]), to_beat.take(ray))
+                t -= r[:3]
+                t *= r[3:]
+                entry = np.fmax(np.fmax(np.fmax(t[:, 0, 0], t[:, 0, 1]), t[:, 0, 2]), zero)
+                leave = np.fmin(np.fmin(np.fmin(t[:, 1, 0], t[:, 1, 1]), t[:, 1, 2]), to_beat.take(ray))
             keep = np.flatnonzero(entry <= leave)  # <=: keep ties; left children first, then right
             # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
             node = self.octant_left.take(node).take(keep, mode="wrap") + (keep >= pairs)
