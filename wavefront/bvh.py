@@ -393,25 +393,34 @@ class BVH:
             are tested with brute force's arithmetic in the scene's
             precision.
             """
-            if self.node_major:
-                b = np.take(self.leaf_boxes32, node, axis=0, mode="wrap").T  # (6 LEAF_SIZE, P)
+            # np.minimum, not fmin, at the end of `leave`: a padding slot's NaN must survive to
+            # fail the test (a real box is never NaN on all three axes: its planes differ on each)
+            if self.node_major:  # pair-major, as in the walk below
+                b = np.take(self.leaf_boxes32, node, axis=0, mode="wrap")  # (P, 6 LEAF_SIZE)
+                b -= np.take(origin24, ray, axis=0, mode="wrap")
+                b *= np.take(inverse24, ray, axis=0, mode="wrap")
+                b = b.reshape(-1, 2, 3 * LEAF_SIZE)  # pair, lo/hi, (axis, slot)
+                near, far = np.fmin(b[:, 0], b[:, 1]), np.fmax(b[:, 0], b[:, 1])
+                s1, s2 = LEAF_SIZE, 2 * LEAF_SIZE
+                entry = np.fmax(np.fmax(np.fmax(near[:, :s1], near[:, s1:s2]), near[:, s2:]), zero)
+                leave = np.minimum(np.fmin(np.fmin(far[:, :s1], far[:, s1:s2]), far[:, s2:]),
+                                   to_beat.take(ray)[:, None])
+                slot = np.flatnonzero(entry <= leave)  # pair * LEAF_SIZE + j for primitive j of pair's leaf
+                pair = slot // LEAF_SIZE
+                # slot j of node k at k * LEAF_SIZE + j
+                prim = self.leaf_primitive.take(node.take(pair) * LEAF_SIZE + (slot - pair * LEAF_SIZE))
             else:
                 b = np.take(self.leaf_boxes32, node, axis=1, mode="wrap")
-            b = b.reshape(2, 3, LEAF_SIZE, -1)  # lo/hi, axis, slot, pair
-            r = np.take(rays, ray, axis=1, mode="wrap")[:, None, :]
-            b -= r[:3]
-            b *= r[3:]
-            near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
-            entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), zero)
-            # np.minimum, not fmin, at the end: a padding slot's NaN must survive to fail the test
-            # (a real box is never NaN on all three axes: its planes differ on each)
-            leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
-            candidate = entry <= leave
-            slot = np.flatnonzero(candidate)  # j * P + pair for primitive j of pair's leaf
-            pair = slot % ray.size
-            if self.node_major:  # slot j of node k at k * LEAF_SIZE + j
-                prim = self.leaf_primitive.take(node.take(pair) * LEAF_SIZE + slot // ray.size)
-            else:  # slot j of node k at j * K + k
+                b = b.reshape(2, 3, LEAF_SIZE, -1)  # lo/hi, axis, slot, pair
+                r = np.take(rays, ray, axis=1, mode="wrap")[:, None, :]
+                b -= r[:3]
+                b *= r[3:]
+                near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
+                entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), zero)
+                leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
+                slot = np.flatnonzero(entry <= leave)  # j * P + pair for primitive j of pair's leaf
+                pair = slot % ray.size
+                # slot j of node k at j * K + k
                 prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))
             ray = ray.take(pair)
             t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1))
@@ -425,15 +434,18 @@ class BVH:
             found.append((ray_ids.take(ray), t, prim))
 
         zero = f32(0)
+        if self.node_major:  # each ray's origin and 1 / d, x y z four times: one row per ray
+            origin12 = np.tile(rays[:3].T, 4)
+            inverse12 = np.tile(rays[3:].T, 4)
+            # and for the leaves' rows: x LEAF_SIZE times, then y, then z, twice (lo, hi)
+            origin24 = np.tile(np.repeat(rays[:3].T, LEAF_SIZE, axis=1), 2)
+            inverse24 = np.tile(np.repeat(rays[3:].T, LEAF_SIZE, axis=1), 2)
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2)
         node = octant * k  # the root's column in each ray's octant
-        if self.node_major:  # each ray's origin and 1 / d, x y z four times: one row per ray
-            origin12 = np.tile(rays[:3].T, 4)
-            inverse12 = np.tile(rays[3:].T, 4)
         # (ray, interior node) pairs whose box the ray enters; both children's
         # boxes are tested at once so each level gathers the ray data once
         depth = 0  # of the pairs' nodes
