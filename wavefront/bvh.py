@@ -45,7 +45,7 @@ from .geometry import T_MIN, escaped_at_inf, is_hit
 from .shapes import Hits, Primitives
 from .vecmath import gather
 
-LEAF_SIZE = 4
+LEAF_SIZE = 8  # 8 against 4: the 1M-triangle terrain 10 % faster, W2 within noise (one level fewer)
 # Rounds of nearest-leaf-first testing before the remaining leaves are tested
 # together (see _traverse's test_leaves).
 LEAF_ROUNDS = 6
