@@ -45,10 +45,19 @@ from .geometry import T_MIN, escaped_at_inf, is_hit
 from .shapes import Hits, Primitives
 from .vecmath import gather
 
-LEAF_SIZE = 8  # 8 against 4: the 1M-triangle terrain 10 % faster, W2 within noise (one level fewer)
+LEAF_SIZE = 4
+# Trees over more primitives than BIG_TREE get leaves of BIG_LEAF_SIZE, one
+# level fewer and half the nodes: on the 1M-triangle terrain 8 was 10 % faster
+# than 4 (16 no faster than 8); on W2's 486 spheres 4 stays faster.
+BIG_LEAF_SIZE = 8
+BIG_TREE = 1 << 16
 # Rounds of nearest-leaf-first testing before the remaining leaves are tested
 # together (see _traverse's test_leaves).
 LEAF_ROUNDS = 6
+# The float32 bounding-sphere pass of spheres-only leaves grows each radius by
+# this many box pads: its own rounding (a few float32 epsilons of the extent)
+# is below one.
+LEAF_PAD = 4
 # Rounds cost a few NumPy calls each, which pays only when rays reach many
 # leaves: W2's ~1.5 leaves per ray ran 7 % slower with rounds, the 1M terrain's
 # ~10 ran 40 % faster (its exact tests per ray fell from 12 to 5).
@@ -58,8 +67,10 @@ LEAF_ROUNDS_ABOVE = 2
 # 65,536 rays (about 8 % on W2 end to end; see benchmarks/bench.py).  4096
 # against 8192, interleaved in one process on the shared 2-core machine:
 # intersection 13-15 % faster on W2, the 1k- and the 1M-triangle terrain
-# (2048 was within noise of 4096).
-TRAVERSAL_BATCH = 4096
+# (2048 was within noise of 4096); but whole W2 renders in one process were
+# ~3 % faster at 8192, so small trees keep it.
+TRAVERSAL_BATCH = 8192
+TRAVERSAL_BATCH_BIG = 4096  # for node-major trees: 1M-triangle terrain renders ~10 % faster than at 8192
 # Boxes grow on every side by the larger of two margins.  BOX_PAD of the
 # tree's extent covers float32 traversal: rounding of a shifted origin and of
 # (plane - origin) * (1 / d) moves a computed slab entry by at most ~2**-21 of
@@ -185,6 +196,7 @@ class BVH:
         inside[self.outsized] = False
         self.outsized_set = primitives.subset(self.outsized)
         self.leaf_rounds_above = LEAF_ROUNDS_ABOVE  # tests set 0 to exercise the rounds on small trees
+        self.leaf_size = BIG_LEAF_SIZE if inside.sum() > BIG_TREE else LEAF_SIZE
         self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
@@ -204,17 +216,17 @@ class BVH:
             tree = dict(lo=np.zeros((3, 1)), hi=np.zeros((3, 1)), child=np.array([-1]), first=np.array([0]),
                         count=np.array([0]), order=members, first_leaf_depth=0)
         else:
-            tree = build_levels(lo, hi, members)
+            tree = build_levels(lo, hi, members, self.leaf_size)
         boxes = np.concatenate((tree["lo"], tree["hi"]))  # (6, K): lo xyz, hi xyz
         self.child, self.first, self.count, self.order = tree["child"], tree["first"], tree["count"], tree["order"]
         self.first_leaf_depth = tree["first_leaf_depth"]
         # each leaf's primitives in a fixed-width table, padded with unhittable NaN spheres
         k = self.child.size
-        self.leaf_slot = np.full((LEAF_SIZE, k), -1, dtype=np.int64)
-        for j in range(LEAF_SIZE):
+        self.leaf_slot = np.full((self.leaf_size, k), -1, dtype=np.int64)
+        for j in range(self.leaf_size):
             has = self.count > j
             self.leaf_slot[j, has] = self.order.take(self.first[has] + j)
-        self.leaf_primitive = np.maximum(self.leaf_slot, 0).ravel()  # (LEAF_SIZE * K,): slot j of node k at j * K + k
+        self.leaf_primitive = np.maximum(self.leaf_slot, 0).ravel()  # (leaf_size * K,): slot j of node k at j * K + k
         self._build_traversal_tables(boxes.astype(np.float64))
 
     def _build_traversal_tables(self, boxes: np.ndarray) -> None:
@@ -237,14 +249,24 @@ class BVH:
         # each leaf slot's own primitive box, padded like the nodes' and rounded outwards, for
         # the leaf test's float32 pass: a hit of the exact test lies in its primitive's box
         # exactly as it lies in every ancestor's, so this culls nothing a node box would
-        # keep.  Rows are lo x, y, z then hi x, y, z, LEAF_SIZE slots each; NaN in padding
+        # keep.  Rows are lo x, y, z then hi x, y, z, leaf_size slots each; NaN in padding
         # slots fails the test (see test_leaves)
         real = self.leaf_slot >= 0
         slot = np.maximum(self.leaf_slot, 0)
-        prim_lo, prim_hi = self.primitives.bounds()
-        slot_lo = np.where(real, float32_down(prim_lo[:, slot] - pad), np.nan)  # (3, LEAF_SIZE, K)
-        slot_hi = np.where(real, float32_up(prim_hi[:, slot] + pad), np.nan)
-        self.leaf_boxes32 = np.concatenate((slot_lo, slot_hi)).astype(f32).reshape(6 * LEAF_SIZE, k)
+        # Spheres-only trees keep the bounding-sphere pass instead (for a ball it is tighter
+        # than its box: W2 rendered 9 % slower with boxes): the ray's line must pass within
+        # the padded radius of the centre, LEAF_PAD box pads covering its own rounding.
+        self.sphere_leaves = all(kind.name == "sphere" for kind in self.primitives.kinds)
+        if self.sphere_leaves:
+            center = self.bound_center[:, slot]
+            self.leaf_center32 = np.where(real, center, np.nan).astype(f32)  # (3, leaf_size, K)
+            reach = self.bound_radius[slot] + LEAF_PAD * pad
+            self.leaf_reach32 = float32_up(np.where(real, reach, np.nan))  # (leaf_size, K)
+        else:
+            prim_lo, prim_hi = self.primitives.bounds()
+            slot_lo = np.where(real, float32_down(prim_lo[:, slot] - pad), np.nan)  # (3, leaf_size, K)
+            slot_hi = np.where(real, float32_up(prim_hi[:, slot] + pad), np.nan)
+            self.leaf_boxes32 = np.concatenate((slot_lo, slot_hi)).astype(f32).reshape(6 * self.leaf_size, k)
         lo, hi = float32_down(boxes[:3] - pad), float32_up(boxes[3:] + pad)  # rounded outwards
         left = np.maximum(self.child, 0)
         right = left + (self.child >= 0)
@@ -263,8 +285,13 @@ class BVH:
         self.node_major = k > NODE_MAJOR_NODES
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (8K, 12)
-            self.leaf_boxes32 = np.ascontiguousarray(self.leaf_boxes32.T)  # (K, 6 LEAF_SIZE)
-            self.leaf_primitive = np.ascontiguousarray(self.leaf_primitive.reshape(LEAF_SIZE, k).T).ravel()
+            if self.sphere_leaves:
+                self.leaf_rows32 = np.ascontiguousarray(np.concatenate(
+                    (self.leaf_center32.reshape(3 * self.leaf_size, k), self.leaf_reach32)).T)  # (K, 4 leaf_size)
+                self.leaf_center32 = self.leaf_reach32 = None
+            else:
+                self.leaf_boxes32 = np.ascontiguousarray(self.leaf_boxes32.T)  # (K, 6 leaf_size)
+            self.leaf_primitive = np.ascontiguousarray(self.leaf_primitive.reshape(self.leaf_size, k).T).ravel()
 
     # -- traversal -----------------------------------------------------------
 
@@ -278,11 +305,12 @@ class BVH:
 
     def _batched(self, query, origin, direction, t_max):
         n = origin.shape[1]
-        if n <= TRAVERSAL_BATCH:
+        batch = TRAVERSAL_BATCH_BIG if self.node_major else TRAVERSAL_BATCH
+        if n <= batch:
             return query(origin, direction, t_max)
         t_max = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        parts = [query(origin[:, a:a + TRAVERSAL_BATCH], direction[:, a:a + TRAVERSAL_BATCH],
-                       t_max[a:a + TRAVERSAL_BATCH]) for a in range(0, n, TRAVERSAL_BATCH)]
+        parts = [query(origin[:, a:a + batch], direction[:, a:a + batch],
+                       t_max[a:a + batch]) for a in range(0, n, batch)]
         if isinstance(parts[0], Hits):
             return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.primitive_idx for h in parts]))
         return np.concatenate(parts)
@@ -354,6 +382,7 @@ class BVH:
         found = []
 
         k = self.child.size
+        d32 = d.astype(f32) if self.sphere_leaves else None
 
         def test_leaves(ray, node, entry):
             """Test (ray, leaf) pairs, each ray's nearest leaves first.
@@ -383,6 +412,34 @@ class BVH:
                     break
                 ray, node, entry = ray.take(alive), node.take(alive), entry.take(alive)
 
+        def sphere_slots(ray, node):
+            """The bounding-sphere pass of spheres-only trees: a float32 test in
+            the traversal's frame over all (leaf_size, P) (ray, sphere) slots
+            keeps those whose line passes within a padded bounding radius and
+            whose span overlaps [0, to_beat]; padding slots are NaN and never kept."""
+            if self.node_major:
+                rows = np.take(self.leaf_rows32, node, axis=0, mode="wrap").T  # (4 leaf_size, P)
+                center, reach = rows[:3 * self.leaf_size].reshape(3, self.leaf_size, -1), rows[3 * self.leaf_size:]
+            else:
+                center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, leaf_size, P)
+                reach = np.take(self.leaf_reach32, node, axis=1, mode="wrap")  # padded radius
+            oc = center - np.take(rays, ray, axis=1, mode="wrap")[:3, None, :]
+            dr = np.take(d32, ray, axis=1, mode="wrap")[:, None, :]
+            h = dr[0] * oc[0]
+            h += dr[1] * oc[1]
+            h += dr[2] * oc[2]
+            oc -= h * dr  # now l, the centre's offset from the line
+            oc *= oc
+            candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
+            candidate &= h - reach <= to_beat.take(ray)
+            slot = np.flatnonzero(candidate)  # j * P + pair for primitive j of pair's leaf
+            pair = slot % ray.size
+            if self.node_major:  # slot j of node k at k * leaf_size + j
+                prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + slot // ray.size)
+            else:  # slot j of node k at j * K + k
+                prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))
+            return slot, pair, prim
+
         def test_slots(ray, node):
             """Test (ray, leaf) pairs against their leaves' primitives.
 
@@ -393,25 +450,27 @@ class BVH:
             are tested with brute force's arithmetic in the scene's
             precision.
             """
+            if self.sphere_leaves:
+                slot, pair, prim = sphere_slots(ray, node)
             # np.minimum, not fmin, at the end of `leave`: a padding slot's NaN must survive to
             # fail the test (a real box is never NaN on all three axes: its planes differ on each)
-            if self.node_major:  # pair-major, as in the walk below
-                b = np.take(self.leaf_boxes32, node, axis=0, mode="wrap")  # (P, 6 LEAF_SIZE)
+            elif self.node_major:  # pair-major, as in the walk below
+                b = np.take(self.leaf_boxes32, node, axis=0, mode="wrap")  # (P, 6 leaf_size)
                 b -= np.take(origin24, ray, axis=0, mode="wrap")
                 b *= np.take(inverse24, ray, axis=0, mode="wrap")
-                b = b.reshape(-1, 2, 3 * LEAF_SIZE)  # pair, lo/hi, (axis, slot)
+                b = b.reshape(-1, 2, 3 * self.leaf_size)  # pair, lo/hi, (axis, slot)
                 near, far = np.fmin(b[:, 0], b[:, 1]), np.fmax(b[:, 0], b[:, 1])
-                s1, s2 = LEAF_SIZE, 2 * LEAF_SIZE
+                s1, s2 = self.leaf_size, 2 * self.leaf_size
                 entry = np.fmax(np.fmax(np.fmax(near[:, :s1], near[:, s1:s2]), near[:, s2:]), zero)
                 leave = np.minimum(np.fmin(np.fmin(far[:, :s1], far[:, s1:s2]), far[:, s2:]),
                                    to_beat.take(ray)[:, None])
-                slot = np.flatnonzero(entry <= leave)  # pair * LEAF_SIZE + j for primitive j of pair's leaf
-                pair = slot // LEAF_SIZE
-                # slot j of node k at k * LEAF_SIZE + j
-                prim = self.leaf_primitive.take(node.take(pair) * LEAF_SIZE + (slot - pair * LEAF_SIZE))
+                slot = np.flatnonzero(entry <= leave)  # pair * leaf_size + j for primitive j of pair's leaf
+                pair = slot // self.leaf_size
+                # slot j of node k at k * leaf_size + j
+                prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + (slot - pair * self.leaf_size))
             else:
                 b = np.take(self.leaf_boxes32, node, axis=1, mode="wrap")
-                b = b.reshape(2, 3, LEAF_SIZE, -1)  # lo/hi, axis, slot, pair
+                b = b.reshape(2, 3, self.leaf_size, -1)  # lo/hi, axis, slot, pair
                 r = np.take(rays, ray, axis=1, mode="wrap")[:, None, :]
                 b -= r[:3]
                 b *= r[3:]
@@ -437,9 +496,9 @@ class BVH:
         if self.node_major:  # each ray's origin and 1 / d, x y z four times: one row per ray
             origin12 = np.tile(rays[:3].T, 4)
             inverse12 = np.tile(rays[3:].T, 4)
-            # and for the leaves' rows: x LEAF_SIZE times, then y, then z, twice (lo, hi)
-            origin24 = np.tile(np.repeat(rays[:3].T, LEAF_SIZE, axis=1), 2)
-            inverse24 = np.tile(np.repeat(rays[3:].T, LEAF_SIZE, axis=1), 2)
+            # and for the leaves' rows: x leaf_size times, then y, then z, twice (lo, hi)
+            origin24 = np.tile(np.repeat(rays[:3].T, self.leaf_size, axis=1), 2)
+            inverse24 = np.tile(np.repeat(rays[3:].T, self.leaf_size, axis=1), 2)
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
