@@ -17,8 +17,9 @@ from .base import Hits, ShapeKind, SurfaceHits
 
 # Rays tested together by brute force.  Each of the exact tests' ~40
 # operations makes a (primitives, rays) temporary: with a few thousand rays
-# they stay in L2 instead of streaming through memory (measured on the Cornell
-# box's 18 quads, see the commit that set it).
+# they stay in L2 instead of streaming through memory.  Whole Cornell box
+# renders (128x128, 64 spp, one core, interleaved in one process): 4.41 s with
+# the whole wavefront at once, 4.17 s at 4096, 4.44 s at 2048.
 BRUTE_FORCE_RAYS = 4096
 
 
