@@ -4,15 +4,19 @@ Depth-first traversal with a stack per ray does not vectorise.  Instead the
 unit of work is a (ray, node) *pair*: every pair whose box the ray enters
 before its best hit so far survives, interior nodes expand to two child
 pairs, and leaves expand to (ray, primitive) pairs.  Those pass a
-conservative float32 test against each primitive's bounding sphere first, and
+conservative float32 test first (a slab test against the primitive's own
+padded box; for trees of spheres only, against its bounding sphere), and
 the few that survive it are tested with exactly the arithmetic of the
 brute-force intersector (each kind's ``exact_t``), so both find the same
-primitive at the same ``t`` for every ray, bit for bit.  Each
-level is a handful of NumPy calls over all pairs of that level; the Python
-loop runs over the tree's depth, never over rays.
+primitive at the same ``t`` for every ray, bit for bit.  Where rays reach
+many leaves, each ray's nearest leaves are tested first, in rounds, and
+leaves entered beyond the best hit so far are dropped.  Each level is a
+handful of NumPy calls over all pairs of that level; the Python loop runs
+over the tree's depth (and a few leaf rounds), never over rays.
 
 The tree is built top-down by median split along the widest axis of the
-primitives' box centres, with at most ``LEAF_SIZE`` primitives per leaf, one
+primitives' box centres, with at most ``LEAF_SIZE`` primitives per leaf
+(``BIG_LEAF_SIZE`` in trees of more than ``BIG_TREE`` primitives), one
 level at a time: each level is a few NumPy calls (a segmented reduction for
 the boxes, one sort keyed by (node, centre along the node's axis)) over all
 primitives still in interior nodes, so a million triangles build in seconds.
