@@ -47,13 +47,17 @@ def mixed_scene(rng, counts, spread, extent):
 
 
 def node_major_bvh(prims, extent):
-    """A BVH with its tables stored node-major, as big trees are, whatever its size."""
-    saved = bvh_module.NODE_MAJOR_NODES
-    bvh_module.NODE_MAJOR_NODES = 0
+    """A BVH with its tables stored node-major and leaves of BIG_LEAF_SIZE, as
+    big trees have, and testing leaves in nearest-first rounds, as when rays
+    reach many leaves, whatever its size."""
+    saved = bvh_module.NODE_MAJOR_NODES, bvh_module.BIG_TREE
+    bvh_module.NODE_MAJOR_NODES = bvh_module.BIG_TREE = 0  # and with big trees' wider leaves
     try:
-        return BVH(prims, extent)
+        bvh = BVH(prims, extent)
     finally:
-        bvh_module.NODE_MAJOR_NODES = saved
+        bvh_module.NODE_MAJOR_NODES, bvh_module.BIG_TREE = saved
+    bvh.leaf_rounds_above = 0
+    return bvh
 
 
 def assert_same_hits(prims, origin, direction, t_max, extent=None):

@@ -4,15 +4,19 @@ Depth-first traversal with a stack per ray does not vectorise.  Instead the
 unit of work is a (ray, node) *pair*: every pair whose box the ray enters
 before its best hit so far survives, interior nodes expand to two child
 pairs, and leaves expand to (ray, primitive) pairs.  Those pass a
-conservative float32 test against each primitive's bounding sphere first, and
+conservative float32 test first (a slab test against the primitive's own
+padded box; for trees of spheres only, against its bounding sphere), and
 the few that survive it are tested with exactly the arithmetic of the
 brute-force intersector (each kind's ``exact_t``), so both find the same
-primitive at the same ``t`` for every ray, bit for bit.  Each
-level is a handful of NumPy calls over all pairs of that level; the Python
-loop runs over the tree's depth, never over rays.
+primitive at the same ``t`` for every ray, bit for bit.  Where rays reach
+many leaves, each ray's nearest leaves are tested first, in rounds, and
+leaves entered beyond the best hit so far are dropped.  Each level is a
+handful of NumPy calls over all pairs of that level; the Python loop runs
+over the tree's depth (and a few leaf rounds), never over rays.
 
 The tree is built top-down by median split along the widest axis of the
-primitives' box centres, with at most ``LEAF_SIZE`` primitives per leaf, one
+primitives' box centres, with at most ``LEAF_SIZE`` primitives per leaf
+(``BIG_LEAF_SIZE`` in trees of more than ``BIG_TREE`` primitives), one
 level at a time: each level is a few NumPy calls (a segmented reduction for
 the boxes, one sort keyed by (node, centre along the node's axis)) over all
 primitives still in interior nodes, so a million triangles build in seconds.
@@ -46,10 +50,31 @@ from .shapes import Hits, Primitives
 from .vecmath import gather
 
 LEAF_SIZE = 4
+# Trees over more primitives than BIG_TREE get leaves of BIG_LEAF_SIZE, one
+# level fewer and half the nodes: on the 1M-triangle terrain 8 was 10 % faster
+# than 4 (16 no faster than 8); on W2's 486 spheres 4 stays faster.
+BIG_LEAF_SIZE = 8
+BIG_TREE = 1 << 16
+# Rounds of nearest-leaf-first testing before the remaining leaves are tested
+# together (see _traverse's test_leaves).
+LEAF_ROUNDS = 6
+# The float32 bounding-sphere pass of spheres-only leaves grows each radius by
+# this many box pads: its own rounding (a few float32 epsilons of the extent)
+# is below one.
+LEAF_PAD = 4
+# Rounds cost a few NumPy calls each, which pays only when rays reach many
+# leaves: W2's ~1.5 leaves per ray ran 7 % slower with rounds, the 1M terrain's
+# ~10 ran 40 % faster (its exact tests per ray fell from 12 to 5).
+LEAF_ROUNDS_ABOVE = 2
 # Rays traversed together: the (ray, node) pairs of one level and their
 # temporaries then stay in L2, which measured ~2.5x faster per pair than at
-# 65,536 rays (about 8 % on W2 end to end; see benchmarks/bench.py).
+# 65,536 rays (about 8 % on W2 end to end; see benchmarks/bench.py).  4096
+# against 8192, interleaved in one process on the shared 2-core machine:
+# intersection 13-15 % faster on W2, the 1k- and the 1M-triangle terrain
+# (2048 was within noise of 4096); but whole W2 renders in one process were
+# ~3 % faster at 8192, so small trees keep it.
 TRAVERSAL_BATCH = 8192
+TRAVERSAL_BATCH_BIG = 4096  # for node-major trees: 1M-triangle terrain renders ~10 % faster than at 8192
 # Boxes grow on every side by the larger of two margins.  BOX_PAD of the
 # tree's extent covers float32 traversal: rounding of a shifted origin and of
 # (plane - origin) * (1 / d) moves a computed slab entry by at most ~2**-21 of
@@ -60,9 +85,6 @@ TRAVERSAL_BATCH = 8192
 # (1e-5 of a 12-unit scene).
 BOX_PAD = 2.0 ** -20
 ROUNDING_PAD = 64
-# The float32 pass of the leaf test grows each radius by this many box pads:
-# its own rounding (a few float32 epsilons of the extent) is below one.
-LEAF_PAD = 4
 # Spheres with a radius above OUTSIZED times the median (at most MAX_OUTSIZED
 # of them, largest first) are tested outside the tree.  Such a sphere has 16x
 # the surface of a typical one, so it is hit often and testing every ray
@@ -177,6 +199,8 @@ class BVH:
         inside = np.ones(len(primitives), dtype=bool)
         inside[self.outsized] = False
         self.outsized_set = primitives.subset(self.outsized)
+        self.leaf_rounds_above = LEAF_ROUNDS_ABOVE  # tests set 0 to exercise the rounds on small trees
+        self.leaf_size = BIG_LEAF_SIZE if inside.sum() > BIG_TREE else LEAF_SIZE
         self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
@@ -200,17 +224,17 @@ class BVH:
             tree = dict(lo=np.zeros((3, 1)), hi=np.zeros((3, 1)), child=np.array([-1]), first=np.array([0]),
                         count=np.array([0]), order=members, first_leaf_depth=0)
         else:
-            tree = build_levels(lo, hi, members)
+            tree = build_levels(lo, hi, members, self.leaf_size)
         boxes = np.concatenate((tree["lo"], tree["hi"]))  # (6, K): lo xyz, hi xyz
         self.child, self.first, self.count, self.order = tree["child"], tree["first"], tree["count"], tree["order"]
         self.first_leaf_depth = tree["first_leaf_depth"]
         # each leaf's primitives in a fixed-width table, padded with unhittable NaN spheres
         k = self.child.size
-        self.leaf_slot = np.full((LEAF_SIZE, k), -1, dtype=np.int64)
-        for j in range(LEAF_SIZE):
+        self.leaf_slot = np.full((self.leaf_size, k), -1, dtype=np.int64)
+        for j in range(self.leaf_size):
             has = self.count > j
             self.leaf_slot[j, has] = self.order.take(self.first[has] + j)
-        self.leaf_primitive = np.maximum(self.leaf_slot, 0).ravel()  # (LEAF_SIZE * K,): slot j of node k at j * K + k
+        self.leaf_primitive = np.maximum(self.leaf_slot, 0).ravel()  # (leaf_size * K,): slot j of node k at j * K + k
         self._build_traversal_tables(boxes.astype(np.float64))
 
     def _build_traversal_tables(self, boxes: np.ndarray) -> None:
@@ -230,14 +254,27 @@ class BVH:
         pad += self.primitives.pad + float(np.finfo(f32).tiny)
         # the root box, padded alike, clips rays in the scene's precision
         self.root_box = np.concatenate((boxes[:3, :1] - pad, boxes[3:, :1] + pad))
-        # leaves' bounding spheres in float32 for the first, conservative pass of the leaf test;
-        # NaN in padding slots fails every comparison
+        # each leaf slot's own primitive box, padded like the nodes' and rounded outwards, for
+        # the leaf test's float32 pass: a hit of the exact test lies in its primitive's box
+        # exactly as it lies in every ancestor's, so this culls nothing a node box would
+        # keep.  Rows are lo x, y, z then hi x, y, z, leaf_size slots each; NaN in padding
+        # slots fails the test (see test_leaves)
         real = self.leaf_slot >= 0
         slot = np.maximum(self.leaf_slot, 0)
-        center = self.bound_center[:, slot]
-        self.leaf_center32 = np.where(real, center, np.nan).astype(f32)  # (3, LEAF_SIZE, K)
-        reach = self.bound_radius[slot] + LEAF_PAD * pad
-        self.leaf_reach32 = float32_up(np.where(real, reach, np.nan))
+        # Spheres-only trees keep the bounding-sphere pass instead (for a ball it is tighter
+        # than its box: W2 rendered 9 % slower with boxes): the ray's line must pass within
+        # the padded radius of the centre, LEAF_PAD box pads covering its own rounding.
+        self.sphere_leaves = all(kind.name == "sphere" for kind in self.primitives.kinds)
+        if self.sphere_leaves:
+            center = self.bound_center[:, slot]
+            self.leaf_center32 = np.where(real, center, np.nan).astype(f32)  # (3, leaf_size, K)
+            reach = self.bound_radius[slot] + LEAF_PAD * pad
+            self.leaf_reach32 = float32_up(np.where(real, reach, np.nan))  # (leaf_size, K)
+        else:
+            prim_lo, prim_hi = self.primitives.bounds()
+            slot_lo = np.where(real, float32_down(prim_lo[:, slot] - pad), np.nan)  # (3, leaf_size, K)
+            slot_hi = np.where(real, float32_up(prim_hi[:, slot] + pad), np.nan)
+            self.leaf_boxes32 = np.concatenate((slot_lo, slot_hi)).astype(f32).reshape(6 * self.leaf_size, k)
         lo, hi = float32_down(boxes[:3] - pad), float32_up(boxes[3:] + pad)  # rounded outwards
         left = np.maximum(self.child, 0)
         right = left + (self.child >= 0)
@@ -256,10 +293,13 @@ class BVH:
         self.node_major = k > NODE_MAJOR_NODES
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (8K, 12)
-            self.leaf_rows32 = np.ascontiguousarray(np.concatenate(
-                (self.leaf_center32.reshape(3 * LEAF_SIZE, k), self.leaf_reach32)).T)  # (K, 4 LEAF_SIZE)
-            self.leaf_center32 = self.leaf_reach32 = None
-            self.leaf_primitive = np.ascontiguousarray(self.leaf_primitive.reshape(LEAF_SIZE, k).T).ravel()
+            if self.sphere_leaves:
+                self.leaf_rows32 = np.ascontiguousarray(np.concatenate(
+                    (self.leaf_center32.reshape(3 * self.leaf_size, k), self.leaf_reach32)).T)  # (K, 4 leaf_size)
+                self.leaf_center32 = self.leaf_reach32 = None
+            else:
+                self.leaf_boxes32 = np.ascontiguousarray(self.leaf_boxes32.T)  # (K, 6 leaf_size)
+            self.leaf_primitive = np.ascontiguousarray(self.leaf_primitive.reshape(self.leaf_size, k).T).ravel()
 
     # -- traversal -----------------------------------------------------------
 
@@ -276,12 +316,12 @@ class BVH:
 
     def _batched(self, query, origin, direction, t_max, time=None):
         n = origin.shape[1]
-        if n <= TRAVERSAL_BATCH:
+        batch = TRAVERSAL_BATCH_BIG if self.node_major else TRAVERSAL_BATCH
+        if n <= batch:
             return query(origin, direction, t_max, time)
         t_max = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        parts = [query(origin[:, a:a + TRAVERSAL_BATCH], direction[:, a:a + TRAVERSAL_BATCH],
-                       t_max[a:a + TRAVERSAL_BATCH], None if time is None else time[a:a + TRAVERSAL_BATCH])
-                 for a in range(0, n, TRAVERSAL_BATCH)]
+        parts = [query(origin[:, a:a + batch], direction[:, a:a + batch], t_max[a:a + batch],
+                       None if time is None else time[a:a + batch]) for a in range(0, n, batch)]
         if isinstance(parts[0], Hits):
             return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.primitive_idx for h in parts]))
         return np.concatenate(parts)
@@ -353,27 +393,49 @@ class BVH:
         to_beat = float32_up(nearest - shift)  # the best hit so far in the traversal's frame
         found = []
 
-        d32 = d.astype(f32)
-        origin32 = rays[:3]
         k = self.child.size
+        d32 = d.astype(f32) if self.sphere_leaves else None
 
-        def test_leaves(ray, node):
-            """Test (ray, leaf) pairs against their leaves' primitives.
+        def test_leaves(ray, node, entry):
+            """Test (ray, leaf) pairs, each ray's nearest leaves first.
 
-            A float32 pass in the traversal's frame over all (LEAF_SIZE, P)
-            (ray, primitive) slots keeps those whose line passes within a
-            padded bounding radius and whose span overlaps [0, to_beat];
-            padding slots are NaN and never kept.  Only the kept slots,
-            typically a few in ten, are tested with brute force's arithmetic
-            in the scene's precision.
+            ``entry`` is where each pair's ray enters its leaf's box.  Every
+            round tests each ray's nearest remaining leaves (ties included)
+            and then drops the pairs whose leaf the ray enters beyond its
+            best hit so far, the same cull as the node boxes': a ray over a
+            terrain crosses many leaf boxes behind its hit, and testing them
+            all at once found its hit only after testing them all.  After
+            LEAF_ROUNDS rounds, or once fewer than LEAF_ROUNDS_ABOVE pairs per
+            ray are left, what is left is tested at once.
             """
+            for round_ in range(LEAF_ROUNDS):
+                if round_ < LEAF_ROUNDS - 1 and ray.size > self.leaf_rounds_above * ray_ids.size:
+                    first = np.full(ray_ids.size, np.inf, dtype=f32)
+                    np.minimum.at(first, ray, entry)
+                    now = entry <= first.take(ray)
+                    test_slots(ray[now], node[now])
+                    later = np.flatnonzero(~now)
+                else:
+                    test_slots(ray, node)
+                    break
+                ray, node, entry = ray.take(later), node.take(later), entry.take(later)
+                alive = np.flatnonzero(entry <= to_beat.take(ray))
+                if alive.size == 0:
+                    break
+                ray, node, entry = ray.take(alive), node.take(alive), entry.take(alive)
+
+        def sphere_slots(ray, node):
+            """The bounding-sphere pass of spheres-only trees: a float32 test in
+            the traversal's frame over all (leaf_size, P) (ray, sphere) slots
+            keeps those whose line passes within a padded bounding radius and
+            whose span overlaps [0, to_beat]; padding slots are NaN and never kept."""
             if self.node_major:
-                rows = np.take(self.leaf_rows32, node, axis=0, mode="wrap").T  # (4 LEAF_SIZE, P)
-                center, reach = rows[:3 * LEAF_SIZE].reshape(3, LEAF_SIZE, -1), rows[3 * LEAF_SIZE:]
+                rows = np.take(self.leaf_rows32, node, axis=0, mode="wrap").T  # (4 leaf_size, P)
+                center, reach = rows[:3 * self.leaf_size].reshape(3, self.leaf_size, -1), rows[3 * self.leaf_size:]
             else:
-                center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, LEAF_SIZE, P)
+                center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, leaf_size, P)
                 reach = np.take(self.leaf_reach32, node, axis=1, mode="wrap")  # padded radius
-            oc = center - np.take(origin32, ray, axis=1, mode="wrap")[:, None, :]
+            oc = center - np.take(rays, ray, axis=1, mode="wrap")[:3, None, :]
             dr = np.take(d32, ray, axis=1, mode="wrap")[:, None, :]
             h = dr[0] * oc[0]
             h += dr[1] * oc[1]
@@ -384,9 +446,52 @@ class BVH:
             candidate &= h - reach <= to_beat.take(ray)
             slot = np.flatnonzero(candidate)  # j * P + pair for primitive j of pair's leaf
             pair = slot % ray.size
-            if self.node_major:  # slot j of node k at k * LEAF_SIZE + j
-                prim = self.leaf_primitive.take(node.take(pair) * LEAF_SIZE + slot // ray.size)
+            if self.node_major:  # slot j of node k at k * leaf_size + j
+                prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + slot // ray.size)
             else:  # slot j of node k at j * K + k
+                prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))
+            return slot, pair, prim
+
+        def test_slots(ray, node):
+            """Test (ray, leaf) pairs against their leaves' primitives.
+
+            A float32 slab test in the traversal's frame of every (ray,
+            primitive) slot against the primitive's own padded box keeps
+            those the ray enters before ``to_beat``; padding slots are NaN
+            and never kept.  Only the kept slots, typically a few in ten,
+            are tested with brute force's arithmetic in the scene's
+            precision.
+            """
+            if self.sphere_leaves:
+                slot, pair, prim = sphere_slots(ray, node)
+            # np.minimum, not fmin, at the end of `leave`: a padding slot's NaN must survive to
+            # fail the test (a real box is never NaN on all three axes: its planes differ on each)
+            elif self.node_major:  # pair-major, as in the walk below
+                b = np.take(self.leaf_boxes32, node, axis=0, mode="wrap")  # (P, 6 leaf_size)
+                b -= np.take(origin24, ray, axis=0, mode="wrap")
+                b *= np.take(inverse24, ray, axis=0, mode="wrap")
+                b = b.reshape(-1, 2, 3 * self.leaf_size)  # pair, lo/hi, (axis, slot)
+                near, far = np.fmin(b[:, 0], b[:, 1]), np.fmax(b[:, 0], b[:, 1])
+                s1, s2 = self.leaf_size, 2 * self.leaf_size
+                entry = np.fmax(np.fmax(np.fmax(near[:, :s1], near[:, s1:s2]), near[:, s2:]), zero)
+                leave = np.minimum(np.fmin(np.fmin(far[:, :s1], far[:, s1:s2]), far[:, s2:]),
+                                   to_beat.take(ray)[:, None])
+                slot = np.flatnonzero(entry <= leave)  # pair * leaf_size + j for primitive j of pair's leaf
+                pair = slot // self.leaf_size
+                # slot j of node k at k * leaf_size + j
+                prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + (slot - pair * self.leaf_size))
+            else:
+                b = np.take(self.leaf_boxes32, node, axis=1, mode="wrap")
+                b = b.reshape(2, 3, self.leaf_size, -1)  # lo/hi, axis, slot, pair
+                r = np.take(rays, ray, axis=1, mode="wrap")[:, None, :]
+                b -= r[:3]
+                b *= r[3:]
+                near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
+                entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), zero)
+                leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
+                slot = np.flatnonzero(entry <= leave)  # j * P + pair for primitive j of pair's leaf
+                pair = slot % ray.size
+                # slot j of node k at j * K + k
                 prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))
             ray = ray.take(pair)
             t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1),
@@ -400,28 +505,44 @@ class BVH:
                 to_beat[ray] = float32_up(nearest.take(ray) - shift.take(ray))
             found.append((ray_ids.take(ray), t, prim))
 
+        zero = f32(0)
+        if self.node_major:  # each ray's origin and 1 / d, x y z four times: one row per ray
+            origin12 = np.tile(rays[:3].T, 4)
+            inverse12 = np.tile(rays[3:].T, 4)
+            # and for the leaves' rows: x leaf_size times, then y, then z, twice (lo, hi)
+            origin24 = np.tile(np.repeat(rays[:3].T, self.leaf_size, axis=1), 2)
+            inverse24 = np.tile(np.repeat(rays[3:].T, self.leaf_size, axis=1), 2)
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
-            test_leaves(ray, np.zeros(ray.size, dtype=np.int64))
+            test_slots(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2)
         node = octant * k  # the root's column in each ray's octant
-        zero = f32(0)
         # (ray, interior node) pairs whose box the ray enters; both children's
         # boxes are tested at once so each level gathers the ray data once
         depth = 0  # of the pairs' nodes
         while ray.size:
             pairs = ray.size
             # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
-            r = np.take(rays, ray, axis=1, mode="wrap")
             if self.node_major:
-                t = np.take(self.octant_boxes, node, axis=0, mode="wrap").T.reshape(2, 2, 3, pairs)
+                # pair-major arithmetic: (P, 12) rows with ray rows tiled to match, so the two
+                # big operations run contiguously (on the transposed view they ran strided,
+                # a third of the walk)
+                t = np.take(self.octant_boxes, node, axis=0, mode="wrap")  # (P, 12): child, enter/leave, axis
+                t -= np.take(origin12, ray, axis=0, mode="wrap")
+                t *= np.take(inverse12, ray, axis=0, mode="wrap")
+                beat = to_beat.take(ray)
+                entry, leave = np.empty((2, pairs), dtype=f32), np.empty((2, pairs), dtype=f32)
+                for c in (0, 6):
+                    np.fmax(np.fmax(np.fmax(t[:, c], t[:, c + 1]), t[:, c + 2]), zero, out=entry[c // 6])
+                    np.fmin(np.fmin(np.fmin(t[:, c + 3], t[:, c + 4]), t[:, c + 5]), beat, out=leave[c // 6])
             else:
+                r = np.take(rays, ray, axis=1, mode="wrap")
                 t = np.take(self.octant_boxes, node, axis=1, mode="wrap").reshape(2, 2, 3, pairs)  # child, enter/leave, axis
-            t -= r[:3]
-            t *= r[3:]
-            entry = np.fmax(np.fmax(np.fmax(t[:, 0, 0], t[:, 0, 1]), t[:, 0, 2]), zero)
-            leave = np.fmin(np.fmin(np.fmin(t[:, 1, 0], t[:, 1, 1]), t[:, 1, 2]), to_beat.take(ray))
+                t -= r[:3]
+                t *= r[3:]
+                entry = np.fmax(np.fmax(np.fmax(t[:, 0, 0], t[:, 0, 1]), t[:, 0, 2]), zero)
+                leave = np.fmin(np.fmin(np.fmin(t[:, 1, 0], t[:, 1, 1]), t[:, 1, 2]), to_beat.take(ray))
             keep = np.flatnonzero(entry <= leave)  # <=: keep ties; left children first, then right
             # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
             node = self.octant_left.take(node).take(keep, mode="wrap") + (keep >= pairs)
@@ -432,7 +553,7 @@ class BVH:
             is_leaf = self.octant_is_leaf.take(node)
             leaf = np.flatnonzero(is_leaf)
             if leaf.size:
-                test_leaves(ray.take(leaf), node.take(leaf) % k)  # column -> node
+                test_leaves(ray.take(leaf), node.take(leaf) % k, entry.ravel().take(keep.take(leaf)))  # column -> node
                 inner = np.flatnonzero(~is_leaf)
                 ray, node = ray.take(inner), node.take(inner)
         best_t[ray_ids] = nearest

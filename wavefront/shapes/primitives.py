@@ -15,6 +15,13 @@ import numpy as np
 from ..geometry import BLOCK_ELEMENTS, escaped_at_inf
 from .base import Hits, ShapeKind, SurfaceHits
 
+# Rays tested together by brute force.  Each of the exact tests' ~40
+# operations makes a (primitives, rays) temporary: with a few thousand rays
+# they stay in L2 instead of streaming through memory.  Whole Cornell box
+# renders (128x128, 64 spp, one core, interleaved in one process): 4.41 s with
+# the whole wavefront at once, 4.17 s at 4096, 4.44 s at 2048.
+BRUTE_FORCE_RAYS = 4096
+
 
 class Primitives:
     """The scene's shape sets, in kind order, with one index space.
@@ -78,6 +85,30 @@ class Primitives:
                 yield kind, int(offset), start, min(m, start + block)
 
     def intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
+        """Nearest hit with ``T_MIN < t < t_max`` for every ray, by brute force,
+        :data:`BRUTE_FORCE_RAYS` rays at a time (see :meth:`_intersect`)."""
+        return self._in_chunks(self._intersect, origin, direction, t_max, time)
+
+    def occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
+        """Any hit with ``T_MIN < t < t_max`` (a shadow ray's question), by
+        brute force, :data:`BRUTE_FORCE_RAYS` rays at a time.  Shape ``(N,)`` bool."""
+        return self._in_chunks(self._occluded, origin, direction, t_max, time)
+
+    @staticmethod
+    def _in_chunks(query, origin, direction, t_max, time):
+        n = origin.shape[1]
+        step = BRUTE_FORCE_RAYS
+        if n <= step:
+            return query(origin, direction, t_max, time)
+        # a scalar t_max stays one: escaped_at_inf then skips a pass over the rays
+        limit = (lambda a: t_max) if np.ndim(t_max) == 0 else (lambda a: t_max[a:a + step])  # noqa: E731
+        parts = [query(origin[:, a:a + step], direction[:, a:a + step], limit(a),
+                       None if time is None else time[a:a + step]) for a in range(0, n, step)]
+        if isinstance(parts[0], Hits):
+            return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.primitive_idx for h in parts]))
+        return np.concatenate(parts)
+
+    def _intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
         """Nearest hit with ``T_MIN < t < t_max`` for every ray, by brute force.
 
         The nearest primitive of a block is found with a ``min`` reduction and
@@ -106,7 +137,7 @@ class Primitives:
             best_t = np.fmin(best_t, t_block)
         return Hits(escaped_at_inf(best_t, best_idx >= 0, t_max), best_idx.astype(np.int32))
 
-    def occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
+    def _occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         """Any hit with ``T_MIN < t < t_max`` (a shadow ray's question); rays
         stop being tested at their first hit.  Shape ``(N,)`` bool."""
         n = origin.shape[1]

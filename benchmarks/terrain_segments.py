@@ -1,0 +1,90 @@
+"""Time per path segment on the generated terrain at ~1k and ~1M triangles, one core (issue #11's floor: <= 3x).
+
+    .venv/bin/python benchmarks/terrain_segments.py                 # this checkout, 3 interleaved runs
+    .venv/bin/python benchmarks/terrain_segments.py --runs 5 --root /path/to/other/checkout
+
+The quick, wavefront-only form of ``bench.py --section geometry``'s one-core
+rows, for iterating on the intersection engine.  Each run is a fresh process
+that compiles the scene (timed: the BVH build), then renders it with that
+compiled scene on one worker, so the per-segment time is the render's alone
+and not a difference of two noisy timings.  Both wall and CPU time are
+printed: on a machine shared with other jobs the CPU time is the steadier of
+the two.  The terrains (scenes/make_mesh_models.py) are written once to
+``--folder``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+# the scene of bench.py's geometry section, at ~1k and ~1M triangles
+SCENE = """\
+image: {{width: 128, height: 128}}
+camera: {{look_from: [0, 1.6, 2.4], look_at: [0, 0, 0], vfov: 40}}
+render: {{samples_per_pixel: 16, max_depth: 50, seed: 1}}
+background: {{type: sky}}
+materials: {{ground: {{type: lambertian, albedo: [0.6, 0.5, 0.4]}}}}
+meshes: [{{file: {file}, material: ground}}]
+"""
+CHILD = r"""
+import json, sys, time
+sys.path.insert(0, sys.argv[2])
+import wavefront
+scene = wavefront.load_scene(sys.argv[1])
+wall = time.perf_counter()
+compiled = scene.compile()
+build = time.perf_counter() - wall
+wall, cpu = time.perf_counter(), time.process_time()
+r = wavefront.render_scene(scene, workers=1, memory=1536 << 20, compiled=compiled)
+wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+print(json.dumps({"build": build, "wall": wall, "cpu": cpu, "segments": r.stats.segments,
+                  "peak": r.stats.peak_memory, "wavefront": wavefront.__file__}))
+"""
+
+
+def terrain(folder: Path, triangles: int) -> Path:
+    scene = folder / f"terrain_{triangles}.yaml"
+    if not scene.exists():
+        ply = folder / f"terrain_{triangles}.ply"
+        subprocess.run([sys.executable, str(ROOT / "scenes" / "make_mesh_models.py"), "--big", str(ply),
+                        "--triangles", str(triangles)], check=True)
+        scene.write_text(SCENE.format(file=ply.name))
+    return scene
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--root", default=str(ROOT), help="checkout whose wavefront package to time")
+    parser.add_argument("--folder", default=str(Path(tempfile.gettempdir()) / "wavefront-terrain"))
+    args = parser.parse_args(argv)
+    folder = Path(args.folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    scenes = {"1k": terrain(folder, 1_000), "1M": terrain(folder, 1_000_000)}
+    runs = {label: [] for label in scenes}
+    for _ in range(args.runs):
+        for label, scene in scenes.items():  # interleaved, so both see the same machine
+            out = subprocess.run([sys.executable, "-c", CHILD, str(scene), args.root], check=True,
+                                 capture_output=True, text=True).stdout
+            runs[label].append(json.loads(out))
+    print(f"wavefront from {runs['1k'][0]['wavefront']}; medians of {args.runs} interleaved runs, one core\n")
+    print("| terrain | BVH build (compile) | wall per segment | CPU per segment | peak memory |\n|---|---|---|---|---|")
+    per = {}
+    for label, rs in runs.items():
+        wall = statistics.median(r["wall"] / r["segments"] * 1e9 for r in rs)
+        cpu = statistics.median(r["cpu"] / r["segments"] * 1e9 for r in rs)
+        per[label] = wall, cpu
+        print(f"| {label} | {statistics.median(r['build'] for r in rs):.2f} s | {wall:.0f} ns | {cpu:.0f} ns | "
+              f"{max(r['peak'] for r in rs) / 2**20:.0f} MiB |")
+    print(f"\n1M / 1k per segment: {per['1M'][0] / per['1k'][0]:.2f}x wall, {per['1M'][1] / per['1k'][1]:.2f}x CPU")
+
+
+if __name__ == "__main__":
+    main()
