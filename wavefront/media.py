@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import Sphere
-from .shapes import Box, Mesh, mesh_triangles
+from .shapes import Box, Mesh, Quad, mesh_triangles
 from .shapes.sphere import world_sphere
 from .textures import Checker, ImageTexture, Texture, TextureTable, is_texture, texture_field
 from .validation import color, describe, fail, join, number
@@ -114,11 +114,19 @@ def closed_outward(obj, mesh: Mesh) -> Mesh:
                                         "boundary must enclose a volume")
     if not shape.is_winding_consistent:
         fail(obj, "boundary.mesh.file", f"{where}its faces are not wound consistently, so it has no inside")
-    if shape.volume < 0:
+    # wound inwards in world space: in the file, or outwards in the file under a mirroring transform
+    if (shape.volume < 0) != mirrors(mesh.transform):
         return Mesh(vertices=mesh.vertices, faces=np.ascontiguousarray(mesh.faces[:, ::-1]), material=mesh.material,
                     smooth=mesh.smooth, transform=mesh.transform, vertex_normals=mesh.vertex_normals, uv=mesh.uv,
                     file=mesh.file, dropped=mesh.dropped)
     return mesh
+
+
+def mirrors(transform) -> bool:
+    """Whether ``transform`` reflects (a negative determinant): it turns every
+    face's winding, so a boundary outward in object space is inward in world
+    space, and entering would cross back faces (the fog would vanish)."""
+    return transform is not None and float(np.linalg.det(transform.array[:3, :3])) < 0.0
 
 
 def volume_albedo(obj, value, path: str):
@@ -187,6 +195,8 @@ def boundary_primitives(medium: Medium):
     if isinstance(b, Sphere):
         return "sphere", world_sphere(b)
     if isinstance(b, Box):
+        if mirrors(b.transform):  # swapping u and v turns each face outwards again (see mirrors)
+            return "quads", [Quad(q.corner, q.v, q.u, q.material, q.transform) for q in b.quads()]
         return "quads", b.quads()
     return "triangles", mesh_triangles(b)
 

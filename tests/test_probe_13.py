@@ -1,0 +1,36 @@
+"""Hostile probes of issue #13 (textures, motion blur, media): each test is a
+defect found by probing, fixed with it or marked xfail with the reason."""
+
+import math
+
+import numpy as np
+import pytest
+
+from wavefront import Box, Camera, Medium, Sphere
+from wavefront.shapes import Mesh
+from wavefront.transform import Transform
+
+from .test_media import background_scene, box_mesh_file, rendered, z_score
+
+trimesh = pytest.importorskip("trimesh")
+
+MIRROR = Transform.scale((1, -1, 1))
+
+
+@pytest.mark.parametrize("kind", ["box", "mesh", "inward mesh"])
+@pytest.mark.parametrize("look_from", [(0, 0, 3), (0, 0, 0)])
+def test_a_mirrored_boundary_still_holds_its_fog(tmp_path, kind, look_from):
+    """A transform with a negative determinant (a mirror) turns a boundary's
+    faces inside out in world space; the medium must not turn invisible.
+    From outside, a ray through the centre crosses 2 units of absorbing fog;
+    from the centre, 1 unit."""
+    if kind == "box":
+        boundary = Box((-1, -1, -1), (1, 1, 1), 0, MIRROR)
+    else:
+        boundary = Mesh.read(box_mesh_file(tmp_path, inward=kind == "inward mesh"), 0, transform=MIRROR)
+    density = 0.5
+    fog = Medium(boundary, density, (0, 0, 0))
+    camera = Camera(look_from=look_from, look_at=(0, 0, -5), vfov=2)
+    image = rendered(background_scene([fog], camera=camera, spp=64))
+    length = 2.0 if look_from[2] == 3 else 1.0
+    assert abs(z_score(image, math.exp(-density * length))) < 4.5
