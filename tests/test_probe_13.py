@@ -34,3 +34,25 @@ def test_a_mirrored_boundary_still_holds_its_fog(tmp_path, kind, look_from):
     image = rendered(background_scene([fog], camera=camera, spp=64))
     length = 2.0 if look_from[2] == 3 else 1.0
     assert abs(z_score(image, math.exp(-density * length))) < 4.5
+
+
+def test_a_one_frame_gif_and_a_cmyk_jpeg_are_read_as_rgb(tmp_path):
+    """Pillow reads every GIF as a stack of frames ((1, H, W, 3) for one
+    frame), which was refused as a bad shape; a CMYK JPEG's four ink
+    channels were taken as red, green, blue and alpha."""
+    from PIL import Image
+
+    from wavefront.textures import ImageTexture
+
+    rgb = np.zeros((4, 6, 3), dtype=np.uint8)
+    rgb[..., 0] = 255  # pure red
+    rgb[:2, :, 2] = 255  # magenta on top
+    Image.fromarray(rgb).save(tmp_path / "one.gif")
+    Image.fromarray(rgb).save(tmp_path / "two.gif", save_all=True, append_images=[Image.fromarray(255 - rgb)])
+    Image.fromarray(rgb).convert("CMYK").save(tmp_path / "ink.jpg", quality=100)
+    expected = ImageTexture(pixels=rgb.astype(np.float32) / 255).pixels  # red and magenta are 0 or 1 in sRGB too
+    for name in ("one.gif", "two.gif"):
+        np.testing.assert_array_equal(ImageTexture(str(tmp_path / name)).pixels, expected)
+    ink = ImageTexture(str(tmp_path / "ink.jpg")).pixels
+    assert ink.shape == (4, 6, 3)
+    np.testing.assert_allclose(ink, expected, atol=0.05)  # JPEG is lossy

@@ -239,7 +239,7 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         except Exception as e:  # imageio's plugins raise many kinds; any of them means "not an image we read"
             fail(obj, "file", f"{file}: not an image imageio can read ({_first_line(e)})")
         shape, images = props.shape, props.n_images or 1
-        if images > 1 and len(shape) > 3:
+        if len(shape) > 3:  # a stack of frames (pillow gives even one GIF frame as one)
             shape = shape[1:]
         if len(shape) < 2:
             fail(obj, "file", f"{file}: not a 2D image (shape {shape})")
@@ -263,13 +263,18 @@ def read_image(obj, file: str) -> np.ndarray:
 
     The size is read from the header first and refused above
     ``MAX_TEXTURE_PIXELS`` before any pixel is decoded."""
-    kind, _, _, images = image_header(obj, file)
+    kind, _, _, _ = image_header(obj, file)
     if kind == "exr":
         return _read_exr(obj, file)
     import imageio.v3 as iio
 
     try:
-        data = iio.imread(file, index=0) if images > 1 else iio.imread(file)
+        # index 0: the first frame of an animation or stack; without it pillow
+        # returns even a one-frame GIF as a stack of shape (1, H, W, 3)
+        options = {"index": 0}
+        if iio.immeta(file, index=0).get("mode") == "CMYK":  # printers' ink (a CMYK JPEG), not red-green-blue-alpha
+            options["mode"] = "RGB"
+        data = iio.imread(file, **options)
     except Exception as e:
         fail(obj, "file", f"{file}: cannot decode ({_first_line(e)})")
     return image_pixels(obj, data, path="file", size_checked=True)
