@@ -56,3 +56,19 @@ def test_a_one_frame_gif_and_a_cmyk_jpeg_are_read_as_rgb(tmp_path):
     ink = ImageTexture(str(tmp_path / "ink.jpg")).pixels
     assert ink.shape == (4, 6, 3)
     np.testing.assert_allclose(ink, expected, atol=0.05)  # JPEG is lossy
+
+
+@pytest.mark.parametrize("kind", ["sphere", "box"])
+@pytest.mark.parametrize("offset", [1e-9, 0.0, -1e-9])
+def test_a_camera_on_a_boundary_looking_in_sees_the_fog(kind, offset):
+    """A camera on a boundary (offset 0), or outside it by less than 1e-6,
+    looking in: the boundary lay within the first boundary search's skip
+    distance and the camera's point test put it outside, so its rays never
+    entered the fog (the image was the bare background).  Every ray crosses
+    the 2-unit ball or box of absorbing fog."""
+    density = 0.5
+    boundary = Sphere((0, 0, 0), 1, 0) if kind == "sphere" else Box((-1, -1, -1), (1, 1, 1), 0)
+    fog = Medium(boundary, density, (0, 0, 0))
+    camera = Camera(look_from=(0, 0, 1 + offset), look_at=(0, 0, -5), vfov=2)
+    image = rendered(background_scene([fog], camera=camera, spp=64))
+    assert abs(z_score(image, math.exp(-density * 2.0))) < 4.5
