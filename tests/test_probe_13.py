@@ -72,3 +72,13 @@ def test_a_camera_on_a_boundary_looking_in_sees_the_fog(kind, offset):
     camera = Camera(look_from=(0, 0, 1 + offset), look_at=(0, 0, -5), vfov=2)
     image = rendered(background_scene([fog], camera=camera, spp=64))
     assert abs(z_score(image, math.exp(-density * 2.0))) < 4.5
+
+
+def test_a_moving_sphere_is_refused_as_a_medium_boundary():
+    """From Python a Sphere with center1 was accepted as a boundary and its
+    motion silently dropped (the fog stayed at ``center``)."""
+    from wavefront import SceneError
+
+    with pytest.raises(SceneError, match="boundary.center1"):
+        Medium(Sphere((0, 0, 0), 1, 0, center1=(1, 0, 0)), 1.0)
+    Medium(Sphere((0, 0, 0), 1, 0), 1.0)  # a still sphere is fine

@@ -91,6 +91,8 @@ class Medium:
         set_field = object.__setattr__
         if not isinstance(self.boundary, (Sphere, Box, Mesh)):
             fail(self, "boundary", f"expected a sphere, box or mesh, got {describe(self.boundary)}")
+        if isinstance(self.boundary, Sphere) and self.boundary.center1 is not None:  # it would be held still
+            fail(self, "boundary.center1", "a medium's boundary cannot move (media are not motion-blurred)")
         set_field(self, "density", number(self, self.density, "density", low=0.0))
         if isinstance(self.albedo, Mapping) and self.albedo.get("type") == "image":  # refused before it is read
             fail(self, "albedo", IMAGE_IN_VOLUME)
