@@ -82,3 +82,26 @@ def test_a_moving_sphere_is_refused_as_a_medium_boundary():
     with pytest.raises(SceneError, match="boundary.center1"):
         Medium(Sphere((0, 0, 0), 1, 0, center1=(1, 0, 0)), 1.0)
     Medium(Sphere((0, 0, 0), 1, 0), 1.0)  # a still sphere is fine
+
+
+def test_a_truncated_exr_texture_gives_one_line(tmp_path):
+    """OpenEXR's C++ core printed a damaged file's problems on stdout and
+    stderr itself: three lines for one bad texture instead of one."""
+    import OpenEXR
+
+    from .test_cli import run
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    pixels = np.random.default_rng(0).random((8, 16, 3)).astype(np.float32)
+    with OpenEXR.File(header, {"RGB": pixels}) as exr:
+        exr.write(str(tmp_path / "whole.exr"))
+    data = (tmp_path / "whole.exr").read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[:len(data) // 2])
+    scene = tmp_path / "s.yaml"
+    scene.write_text("materials: {m: {type: lambertian, albedo: {type: image, file: cut.exr}}}\n"
+                     "spheres: [{center: [0, 0, -1], radius: 0.5, material: m}]\n")
+    out = tmp_path / "out.png"
+    r = run("render", scene, "-o", out, "--width", 8, "--height", 8, "--spp", 1)
+    assert r.returncode == 2 and not out.exists()
+    assert r.stdout == ""
+    assert len(r.stderr.splitlines()) == 1 and "materials.m.albedo.file" in r.stderr and "cut.exr" in r.stderr

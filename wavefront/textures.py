@@ -31,7 +31,9 @@ volume has no ``uv``: pass ``None``, which only image textures refuse.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -225,7 +227,7 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         import OpenEXR
 
         try:
-            with OpenEXR.File(file, header_only=True) as exr:
+            with _silenced_output(), OpenEXR.File(file, header_only=True) as exr:
                 (x0, y0), (x1, y1) = exr.header()["dataWindow"]
         except Exception as e:  # OpenEXR raises RuntimeError and others on a damaged header
             fail(obj, "file", f"{file}: cannot read as OpenEXR ({_first_line(e)})")
@@ -280,6 +282,26 @@ def read_image(obj, file: str) -> np.ndarray:
     return image_pixels(obj, data, path="file", size_checked=True)
 
 
+@contextlib.contextmanager
+def _silenced_output():
+    """File descriptors 1 and 2 to /dev/null meanwhile: OpenEXR's C++ core
+    prints a damaged file's problems there itself (two extra lines besides
+    the exception that becomes our one-line error)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
+
+
 def _first_line(e: BaseException) -> str:
     text = str(e).strip().splitlines()
     return text[0][:200] if text else type(e).__name__
@@ -289,7 +311,7 @@ def _read_exr(obj, file: str) -> np.ndarray:
     import OpenEXR
 
     try:
-        with OpenEXR.File(file, separate_channels=True) as exr:
+        with _silenced_output(), OpenEXR.File(file, separate_channels=True) as exr:
             # copied out: closing the file empties the channel dictionary
             channels = {name: np.array(c.pixels) for name, c in exr.channels().items()}
     except SceneError:
