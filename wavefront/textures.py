@@ -287,10 +287,15 @@ def _silenced_output():
     """File descriptors 1 and 2 to /dev/null meanwhile: OpenEXR's C++ core
     prints a damaged file's problems there itself (two extra lines besides
     the exception that becomes our one-line error)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    null = os.open(os.devnull, os.O_WRONLY)
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            stream.flush()
+    try:
+        saved = [os.dup(1), os.dup(2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+    except OSError:  # a descriptor is closed: nothing to silence
+        yield
+        return
     try:
         os.dup2(null, 1)
         os.dup2(null, 2)
