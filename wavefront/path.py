@@ -81,14 +81,19 @@ RESTART_BACKOFF = T_MIN * (1.0 - 1e-3)
 # in the floor's plane) is left only through its sides, whatever the rounding
 # of a distance measured from a restart point.  The same 1e-6 as above.
 COINCIDENT = T_MIN - RESTART_BACKOFF
-# A camera ray's first boundary search starts this far behind the camera, so
-# that it finds a boundary up to T_MIN behind it, at it or just in front
-# (RESTART_BACKOFF would skip those within 1e-6): a camera on a boundary, or
-# outside it by less than 1e-6, looking in, saw through the fog (the camera's
-# media come from a point test, which puts a point on the boundary outside).
-# Crossing a boundary just behind the camera leaves the mask as it is just
-# beyond it, which is right whichever side the camera is on.
-CAMERA_BACKOFF = 2.0 * T_MIN
+# Every segment's first boundary search (a camera ray's, a scattered ray's,
+# a shadow ray's) starts this far behind its origin, so that it finds a
+# boundary up to T_MIN behind it, at it or just in front (RESTART_BACKOFF
+# would skip those within 1e-6): a camera on a boundary looking in saw
+# through the fog (its point test puts it outside), and a path refracted
+# through glass whose fog boundary lay within 1e-6 of the glass (not exactly
+# on it: see media.py's interfaces) never entered the fog, the boundary being
+# "on the surface" before the hit and skipped after it.  Crossing a boundary
+# just behind the origin leaves the mask as it is just beyond it along the
+# ray: right whichever side the origin is on, and a no-op when it was right
+# already (crossings set or clear a bit, idempotently).  Such a piece is
+# clamped to start at the origin, so nothing scatters behind it.
+FIRST_BACKOFF = 2.0 * T_MIN
 # A shadow ray stops this fraction short of the light's surface, so that it
 # cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
 # the light than that is missed, 1e-4 of the distance.
@@ -455,7 +460,7 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
 
 # -- participating media (wavefront.media) ----------------------------------------
 
-def walk_boundaries(media, origin, direction, t_end, mask, visit, first_backoff=RESTART_BACKOFF) -> np.ndarray:
+def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
     """Visit the pieces of the segments ``origin + t direction``, ``0 <= t <
     t_end``, between the invisible media boundaries they cross, in order.
 
@@ -469,8 +474,8 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit, first_backoff=
     ``origin``: a path's hit was found from its vertex, and a restart on a
     boundary only looks for the next boundary.  Returns the rows that would
     cross more than ``CROSSINGS_PER_SEGMENT - 1`` boundaries (unvisited past
-    that: rounding trouble, not light).  ``first_backoff`` (a number or
-    ``(N,)``) replaces ``RESTART_BACKOFF`` for the first piece.
+    that: rounding trouble, not light).  The first piece's search
+    starts ``FIRST_BACKOFF`` behind ``origin``.
     """
     row = np.arange(t_end.shape[0])
     start = np.zeros(row.size, dtype=np.float64)
@@ -480,12 +485,12 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit, first_backoff=
         # the boundary query starts just before the piece (see RESTART_BACKOFF),
         # so that a boundary right past a crossing, or past a vertex in a
         # medium, is not skipped as T_MIN skips surfaces at a ray's origin
-        back = start - (RESTART_BACKOFF if piece else np.take(np.broadcast_to(first_backoff, t_end.shape), row))
+        back = start - (RESTART_BACKOFF if piece else FIRST_BACKOFF)
         o = gather(origin, row) + back.astype(d.dtype) * d
         if media.boundaries is not None:
             hits = boundary_hits(media, o, d, (end - back - COINCIDENT).astype(o.dtype))
             crossing = hits.primitive_idx >= 0
-            stop = np.where(crossing, np.maximum(back + hits.t, start), end)  # one behind a camera: at it
+            stop = np.where(crossing, np.maximum(back + hits.t, start), end)  # one behind the origin: at it
         else:
             crossing, stop = np.zeros(row.size, dtype=bool), end
         # No closed boundary reaches infinity: a piece that does is in no
@@ -566,8 +571,7 @@ def travel_media(cs: CompiledScene, live: PathBatch, hits):
         return ended
 
     mask = live.media_mask.copy()
-    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight,
-                           np.where(live.depth == 0, CAMERA_BACKOFF, RESTART_BACKOFF))
+    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight)
     live.media_mask = mask
     scatters = t_scatter < np.inf
     in_idx = np.flatnonzero(scatters)
