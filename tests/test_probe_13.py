@@ -148,3 +148,14 @@ def test_fog_in_a_mirrored_glass_box_is_entered():
     plain = image(None)
     assert plain < 0.3
     assert abs(image(MIRROR) - plain) < 0.03
+
+
+def test_a_transform_sending_center1_out_of_range_names_center1():
+    """The message named the (in-range) centre [0, 0, 0] when only center1
+    left the coordinate range under the transform."""
+    from wavefront import SceneError
+
+    with pytest.raises(SceneError, match=r"centre at time 1 \(center1\) \[1e\+151"):
+        Sphere((0, 0, 0), 1, 0, Transform.scale(1e149), center1=(100, 0, 0))
+    with pytest.raises(SceneError, match=r"sphere's centre \[1e\+151"):
+        Sphere((1e149, 0, 0), 1, 0, Transform.scale(100.0), center1=(0, 0, 0))
