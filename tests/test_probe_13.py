@@ -174,3 +174,19 @@ def test_a_camera_on_a_mesh_boundary_edge_looking_in_sees_the_fog(tmp_path):
     image = rendered(background_scene([fog], camera=camera, spp=64))[6:10, 6:10]  # rays crossing the +-z faces
     SPP_OF[id(image)] = 64
     assert abs(z_score(image, math.exp(-density * 2.0))) < 4.5
+
+
+def test_a_mirrored_emissive_box_lights_its_outside():
+    """Boxes' faces are made outward in object space; a mirroring transform
+    turned them inward in world space, so an emissive box (one-sided
+    emission) went dark from outside. Same root cause as the mirrored fog box."""
+    from wavefront import Emissive, RenderSettings, Scene, Solid, render
+
+    def image(transform):
+        scene = Scene(quads=Box((-1, -1, -1), (1, 1, 1), "lamp", transform).quads(),
+                      materials={"lamp": Emissive((1.0, 1.0, 1.0))}, background=Solid((0.0, 0.0, 0.0)),
+                      width=8, height=8, camera=Camera(look_from=(0.5, 0.7, 5), look_at=(0, 0, 0), vfov=10),
+                      render=RenderSettings(samples_per_pixel=4, max_depth=2))
+        return render(scene, workers=1)
+
+    np.testing.assert_array_equal(image(MIRROR), image(None))

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import Sphere
-from .shapes import Box, Mesh, Quad, mesh_triangles
+from .shapes import Box, Mesh, mesh_triangles
 from .shapes.sphere import world_sphere
 from .textures import Checker, ImageTexture, Texture, TextureTable, is_texture, texture_field
 from .validation import color, describe, fail, join, number
@@ -197,9 +197,7 @@ def boundary_primitives(medium: Medium):
     if isinstance(b, Sphere):
         return "sphere", world_sphere(b)
     if isinstance(b, Box):
-        if mirrors(b.transform):  # swapping u and v turns each face outwards again (see mirrors)
-            return "quads", [Quad(q.corner, q.v, q.u, q.material, q.transform) for q in b.quads()]
-        return "quads", b.quads()
+        return "quads", b.quads()  # outward in world space, under a mirror too
     return "triangles", mesh_triangles(b)
 
 
