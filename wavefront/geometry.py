@@ -101,8 +101,10 @@ class Sphere:
             with np.errstate(invalid="ignore"):
                 in_range = np.abs(center).max() <= MAX_COORDINATE
             if not (in_range and MIN_RADIUS <= world_radius <= MAX_COORDINATE):
-                center = center[:, 0]
-                fail(self, "transform", f"in world space the sphere's centre {center.tolist()} or radius "
+                # name the centre that is out of range: center1's when only it is
+                moved = np.abs(center[:, 0]).max() <= MAX_COORDINATE < np.abs(center).max()
+                which, center = ("centre at time 1 (center1)", center[:, -1]) if moved else ("centre", center[:, 0])
+                fail(self, "transform", f"in world space the sphere's {which} {center.tolist()} or radius "
                                         f"{world_radius:g} "
                                         f"is out of range (coordinates within {MAX_COORDINATE:g}, radius at least "
                                         f"{MIN_RADIUS:g})")

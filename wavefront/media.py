@@ -91,6 +91,8 @@ class Medium:
         set_field = object.__setattr__
         if not isinstance(self.boundary, (Sphere, Box, Mesh)):
             fail(self, "boundary", f"expected a sphere, box or mesh, got {describe(self.boundary)}")
+        if isinstance(self.boundary, Sphere) and self.boundary.center1 is not None:  # it would be held still
+            fail(self, "boundary.center1", "a medium's boundary cannot move (media are not motion-blurred)")
         set_field(self, "density", number(self, self.density, "density", low=0.0))
         if isinstance(self.albedo, Mapping) and self.albedo.get("type") == "image":  # refused before it is read
             fail(self, "albedo", IMAGE_IN_VOLUME)
@@ -114,11 +116,19 @@ def closed_outward(obj, mesh: Mesh) -> Mesh:
                                         "boundary must enclose a volume")
     if not shape.is_winding_consistent:
         fail(obj, "boundary.mesh.file", f"{where}its faces are not wound consistently, so it has no inside")
-    if shape.volume < 0:
+    # wound inwards in world space: in the file, or outwards in the file under a mirroring transform
+    if (shape.volume < 0) != mirrors(mesh.transform):
         return Mesh(vertices=mesh.vertices, faces=np.ascontiguousarray(mesh.faces[:, ::-1]), material=mesh.material,
                     smooth=mesh.smooth, transform=mesh.transform, vertex_normals=mesh.vertex_normals, uv=mesh.uv,
                     file=mesh.file, dropped=mesh.dropped)
     return mesh
+
+
+def mirrors(transform) -> bool:
+    """Whether ``transform`` reflects (a negative determinant): it turns every
+    face's winding, so a boundary outward in object space is inward in world
+    space, and entering would cross back faces (the fog would vanish)."""
+    return transform is not None and float(np.linalg.det(transform.array[:3, :3])) < 0.0
 
 
 def volume_albedo(obj, value, path: str):
@@ -187,7 +197,7 @@ def boundary_primitives(medium: Medium):
     if isinstance(b, Sphere):
         return "sphere", world_sphere(b)
     if isinstance(b, Box):
-        return "quads", b.quads()
+        return "quads", b.quads()  # outward in world space, under a mirror too
     return "triangles", mesh_triangles(b)
 
 

@@ -81,6 +81,19 @@ RESTART_BACKOFF = T_MIN * (1.0 - 1e-3)
 # in the floor's plane) is left only through its sides, whatever the rounding
 # of a distance measured from a restart point.  The same 1e-6 as above.
 COINCIDENT = T_MIN - RESTART_BACKOFF
+# Every segment's first boundary search (a camera ray's, a scattered ray's,
+# a shadow ray's) starts this far behind its origin, so that it finds a
+# boundary up to T_MIN behind it, at it or just in front (RESTART_BACKOFF
+# would skip those within 1e-6): a camera on a boundary looking in saw
+# through the fog (its point test puts it outside), and a path refracted
+# through glass whose fog boundary lay within 1e-6 of the glass (not exactly
+# on it: see media.py's interfaces) never entered the fog, the boundary being
+# "on the surface" before the hit and skipped after it.  Crossing a boundary
+# just behind the origin leaves the mask as it is just beyond it along the
+# ray: right whichever side the origin is on, and a no-op when it was right
+# already (crossings set or clear a bit, idempotently).  Such a piece is
+# clamped to start at the origin, so nothing scatters behind it.
+FIRST_BACKOFF = 2.0 * T_MIN
 # A shadow ray stops this fraction short of the light's surface, so that it
 # cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
 # the light than that is missed, 1e-4 of the distance.
@@ -461,7 +474,8 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
     ``origin``: a path's hit was found from its vertex, and a restart on a
     boundary only looks for the next boundary.  Returns the rows that would
     cross more than ``CROSSINGS_PER_SEGMENT - 1`` boundaries (unvisited past
-    that: rounding trouble, not light).
+    that: rounding trouble, not light).  The first piece's search
+    starts ``FIRST_BACKOFF`` behind ``origin``.
     """
     row = np.arange(t_end.shape[0])
     start = np.zeros(row.size, dtype=np.float64)
@@ -471,12 +485,12 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
         # the boundary query starts just before the piece (see RESTART_BACKOFF),
         # so that a boundary right past a crossing, or past a vertex in a
         # medium, is not skipped as T_MIN skips surfaces at a ray's origin
-        back = start - RESTART_BACKOFF
+        back = start - (RESTART_BACKOFF if piece else FIRST_BACKOFF)
         o = gather(origin, row) + back.astype(d.dtype) * d
         if media.boundaries is not None:
             hits = boundary_hits(media, o, d, (end - back - COINCIDENT).astype(o.dtype))
             crossing = hits.primitive_idx >= 0
-            stop = np.where(crossing, back + hits.t, end)
+            stop = np.where(crossing, np.maximum(back + hits.t, start), end)  # one behind the origin: at it
         else:
             crossing, stop = np.zeros(row.size, dtype=bool), end
         # No closed boundary reaches infinity: a piece that does is in no

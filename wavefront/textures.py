@@ -31,7 +31,9 @@ volume has no ``uv``: pass ``None``, which only image textures refuse.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -225,7 +227,7 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         import OpenEXR
 
         try:
-            with OpenEXR.File(file, header_only=True) as exr:
+            with _silenced_output(), OpenEXR.File(file, header_only=True) as exr:
                 (x0, y0), (x1, y1) = exr.header()["dataWindow"]
         except Exception as e:  # OpenEXR raises RuntimeError and others on a damaged header
             fail(obj, "file", f"{file}: cannot read as OpenEXR ({_first_line(e)})")
@@ -239,7 +241,7 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         except Exception as e:  # imageio's plugins raise many kinds; any of them means "not an image we read"
             fail(obj, "file", f"{file}: not an image imageio can read ({_first_line(e)})")
         shape, images = props.shape, props.n_images or 1
-        if images > 1 and len(shape) > 3:
+        if len(shape) > 3:  # a stack of frames (pillow gives even one GIF frame as one)
             shape = shape[1:]
         if len(shape) < 2:
             fail(obj, "file", f"{file}: not a 2D image (shape {shape})")
@@ -263,16 +265,46 @@ def read_image(obj, file: str) -> np.ndarray:
 
     The size is read from the header first and refused above
     ``MAX_TEXTURE_PIXELS`` before any pixel is decoded."""
-    kind, _, _, images = image_header(obj, file)
+    kind, _, _, _ = image_header(obj, file)
     if kind == "exr":
         return _read_exr(obj, file)
     import imageio.v3 as iio
 
     try:
-        data = iio.imread(file, index=0) if images > 1 else iio.imread(file)
+        # index 0: the first frame of an animation or stack; without it pillow
+        # returns even a one-frame GIF as a stack of shape (1, H, W, 3)
+        options = {"index": 0}
+        if iio.immeta(file, index=0).get("mode") == "CMYK":  # printers' ink (a CMYK JPEG), not red-green-blue-alpha
+            options["mode"] = "RGB"
+        data = iio.imread(file, **options)
     except Exception as e:
         fail(obj, "file", f"{file}: cannot decode ({_first_line(e)})")
     return image_pixels(obj, data, path="file", size_checked=True)
+
+
+@contextlib.contextmanager
+def _silenced_output():
+    """File descriptors 1 and 2 to /dev/null meanwhile: OpenEXR's C++ core
+    prints a damaged file's problems there itself (two extra lines besides
+    the exception that becomes our one-line error)."""
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            stream.flush()
+    try:
+        saved = [os.dup(1), os.dup(2)]
+        null = os.open(os.devnull, os.O_WRONLY)
+    except OSError:  # a descriptor is closed: nothing to silence
+        yield
+        return
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
 
 
 def _first_line(e: BaseException) -> str:
@@ -284,7 +316,7 @@ def _read_exr(obj, file: str) -> np.ndarray:
     import OpenEXR
 
     try:
-        with OpenEXR.File(file, separate_channels=True) as exr:
+        with _silenced_output(), OpenEXR.File(file, separate_channels=True) as exr:
             # copied out: closing the file empties the channel dictionary
             channels = {name: np.array(c.pixels) for name, c in exr.channels().items()}
     except SceneError:

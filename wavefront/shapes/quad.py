@@ -111,14 +111,20 @@ def box_quads(lo, hi, material, transform: Transform | None = None) -> list[Quad
     (x0, y0, z0), (x1, y1, z1) = lo, hi
     dx, dy, dz = (x1 - x0, 0.0, 0.0), (0.0, y1 - y0, 0.0), (0.0, 0.0, z1 - z0)
     neg = lambda a: tuple(-c for c in a)  # noqa: E731
-    return [
-        Quad((x0, y0, z1), dx, dy, material, transform),  # front (+z)
-        Quad((x1, y0, z1), neg(dz), dy, material, transform),  # right (+x)
-        Quad((x1, y0, z0), neg(dx), dy, material, transform),  # back (-z)
-        Quad((x0, y0, z0), dz, dy, material, transform),  # left (-x)
-        Quad((x0, y1, z1), dx, neg(dz), material, transform),  # top (+y)
-        Quad((x0, y0, z0), dx, dz, material, transform),  # bottom (-y)
+    faces = [
+        ((x0, y0, z1), dx, dy),  # front (+z)
+        ((x1, y0, z1), neg(dz), dy),  # right (+x)
+        ((x1, y0, z0), neg(dx), dy),  # back (-z)
+        ((x0, y0, z0), dz, dy),  # left (-x)
+        ((x0, y1, z1), dx, neg(dz)),  # top (+y)
+        ((x0, y0, z0), dx, dz),  # bottom (-y)
     ]
+    # A mirroring transform (negative determinant) turns every cross(u, v)
+    # inwards: swapping u and v keeps the faces outward in world space (an
+    # emissive box lights its outside, a box of fog is entered from outside).
+    if isinstance(transform, Transform) and np.linalg.det(transform.array[:3, :3]) < 0:
+        faces = [(corner, v, u) for corner, u, v in faces]
+    return [Quad(corner, u, v, material, transform) for corner, u, v in faces]
 
 
 class QuadSet(ShapeKind):
