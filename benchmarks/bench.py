@@ -20,8 +20,9 @@ whole_process  W1 and W2 as a user runs them: ``wavefront render`` from launch
            cached kernels, render, write); medians of ``--runs`` interleaved
            runs after a warm-up, beside the in-process figures (wavefront's
            ``render_scene`` in a fresh process, Mitsuba's second render).
-           ``--w3`` adds W3, the cover at 1200x675 and 500 spp, one run each
-           (minutes; ``--w3-size 120x68x2`` checks the set-up quickly).
+           W3, the cover at 1200x675 and 500 spp, one run each, comes last
+           (several minutes; ``--no-w3`` leaves it out, ``--w3-size
+           120x68x2`` checks its set-up quickly).
 startup    every fixed cost of one ``wavefront render`` (the 40x23, 1 spp
            cover and W2): interpreter start, imports, arguments, YAML,
            validation, compile, BVH, pool start, render, encode, PNG write,
@@ -1090,8 +1091,9 @@ def main(argv=None):
     parser.add_argument("--compare-tree", metavar="DIR",
                         help="startup: also measure the wavefront source tree in DIR (e.g. an older commit's "
                              "`git archive`), interleaved run by run")
-    parser.add_argument("--w3", action="store_true",
-                        help="whole_process: add W3, the cover at 1200x675 and 500 spp, one run each (minutes)")
+    parser.add_argument("--no-w3", dest="w3", action="store_false",
+                        help="whole_process: leave out W3, the cover at 1200x675 and 500 spp, one run each "
+                             "(several minutes)")
     parser.add_argument("--w3-size", metavar="WxHxSPP", default="1200x675x500",
                         help="W3's width, height and samples per pixel (a smaller one checks the set-up)")
     args = parser.parse_args(argv)
