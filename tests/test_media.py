@@ -522,3 +522,23 @@ def test_a_moving_sphere_never_bounds_a_medium():
     assert (still.interface_of >= 0).any() and still.boundaries is None
     table = scene.replace(spheres=[*scene.spheres, moving], media=media).compile().media
     assert (table.interface_of < 0).all() and table.boundaries is not None
+
+
+def test_the_compile_estimate_counts_medium_boundaries(tmp_path):
+    """A mesh boundary is compiled into its own triangle set and BVH: a budget
+    that would hold the visible scene alone must still refuse it, before
+    compiling (a 1.3M-face boundary once peaked at 2.1 GiB under --memory 2G)."""
+    from wavefront.memory import MemoryBudgetError, current_rss
+    from wavefront.render import BOUNDARY_COMPILE_BYTES_PER_PRIMITIVE, compile_bytes, compile_within
+
+    ball = trimesh.creation.icosphere(subdivisions=4)  # 5,120 faces
+    ball.export(tmp_path / "ball.ply")
+    boundary = Mesh.read(str(tmp_path / "ball.ply"), 0)
+    scene = lit_scene().replace(media=[Medium(boundary, 1.0), Medium(Box((-3, -1, -3), (3, 3, 4), 0), 0.1),
+                                       Medium(Sphere((0, 0.5, 0), 0.7, 0), 0.2)])
+    need, what = compile_bytes(scene)
+    visible = compile_bytes(lit_scene())[0]
+    assert need - visible == BOUNDARY_COMPILE_BYTES_PER_PRIMITIVE * (5120 + 6 + 1)
+    assert "5,127 medium-boundary primitives" in what
+    with pytest.raises(MemoryBudgetError, match="medium-boundary"):
+        compile_within(scene, current_rss() + visible + (need - visible) // 2)
