@@ -94,6 +94,36 @@ def test_8bit_images_are_decoded_from_srgb_with_colour_science(tmp_path):
     assert texture.pixels[1, 1, 0] == pytest.approx(0.2158605, abs=1e-6)  # 128: not 128/255 = 0.502
 
 
+def test_the_8bit_decoding_table_is_colour_sciences_bit_for_bit(tmp_path):
+    """The shipped table (an 8-bit texture is decoded without importing
+    colour-science) recomputed with the installed colour-science: equal in
+    every bit, and every code of a real image reads its entry; a 16-bit image
+    still goes through colour-science itself."""
+    import colour
+
+    from wavefront.data.make_srgb8_decoding import colour_srgb8_decoding
+    from wavefront.textures import srgb_decoding
+
+    table = srgb_decoding(255)
+    np.testing.assert_array_equal(table.view(np.uint32), colour_srgb8_decoding().view(np.uint32))
+    every = np.arange(256, dtype=np.uint8).reshape(16, 16, 1).repeat(3, axis=2)
+    texture = ImageTexture(write_png(tmp_path / "codes.png", every))
+    expected = colour.cctf_decoding(every / 255.0, function="sRGB").astype(np.float32)
+    np.testing.assert_array_equal(texture.pixels, expected)
+    wide = srgb_decoding(65535)
+    np.testing.assert_array_equal(wide[::257], colour.cctf_decoding(np.arange(256) / 255.0,
+                                                                    function="sRGB").astype(np.float32))
+
+
+def test_an_8bit_texture_loads_without_importing_colour_science(tmp_path):
+    path = write_png(tmp_path / "tiny.png", TINY)
+    code = (f"import sys, wavefront; t = wavefront.ImageTexture({path!r}); "
+            "assert 'colour' not in sys.modules, 'colour imported'; print(t.pixels.shape)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "(2, 3, 3)"
+
+
 @pytest.mark.parametrize("u, v, row, column", [
     (0.0, 0.0, 1, 0), (0.99, 0.0, 1, 2), (0.5, 0.25, 1, 1),  # v = 0 is the bottom row, as in RTOW
     (0.0, 1.0, 0, 0), (0.5, 0.75, 0, 1), (0.34, 0.51, 0, 1), (1.0, 1.0, 0, 2),

@@ -353,15 +353,10 @@ def image_pixels(obj, data, path: str = "pixels", size_checked: bool = False) ->
     if a.dtype.kind == "b":  # a 1-bit image: black and white are the same in sRGB and linear
         a = a.astype(np.uint8) * np.uint8(255)
     if a.dtype.kind in "ui":
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # colour warns that matplotlib is absent
-            import colour
-
         levels = np.iinfo(a.dtype).max
         if a.dtype.kind == "i" or levels > 65535:
             fail(obj, path, f"unsupported pixel type {a.dtype} (8- or 16-bit unsigned, or float)")
-        table = np.asarray(colour.cctf_decoding(np.arange(levels + 1) / levels, function="sRGB"), dtype=np.float32)
-        return np.ascontiguousarray(table[a])
+        return np.ascontiguousarray(srgb_decoding(levels)[a])
     if a.dtype.kind != "f":
         fail(obj, path, f"unsupported pixel type {a.dtype}")
     out = np.ascontiguousarray(a, dtype=np.float32)
@@ -370,6 +365,28 @@ def image_pixels(obj, data, path: str = "pixels", size_checked: bool = False) ->
     if (out < 0).any():
         fail(obj, path, "the image holds negative values (a colour is >= 0)")
     return out
+
+
+# colour-science's sRGB decoding of the 256 8-bit codes, made and checked by
+# data/make_srgb8_decoding.py: an 8-bit texture (the common kind) is decoded
+# without importing colour-science (~0.5 s); 16-bit ones import it.
+SRGB8_DECODING = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "srgb8_decoding.txt")
+
+
+def srgb_decoding(levels: int) -> np.ndarray:
+    """(levels + 1,) float32: colour-science's linear value of every code of an
+    image with ``levels + 1`` sRGB codes (255: 8-bit, 65535: 16-bit)."""
+    if levels == 255:
+        with open(SRGB8_DECODING) as f:
+            table = np.array([float.fromhex(line) for line in f if line.strip() and not line.startswith("#")],
+                             dtype=np.float32)
+        if table.shape != (256,) or not np.all(np.diff(table) > 0):  # a damaged install, not a user's input
+            raise RuntimeError(f"{SRGB8_DECODING}: not 256 increasing values")
+        return table
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # colour warns that matplotlib is absent
+        import colour
+    return np.asarray(colour.cctf_decoding(np.arange(levels + 1) / levels, function="sRGB"), dtype=np.float32)
 
 
 def lookup(pixels: np.ndarray, uv: np.ndarray, filter: str) -> np.ndarray:
