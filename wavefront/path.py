@@ -628,14 +628,43 @@ def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, 
     origin = gather(point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(origin, u_choice, u_point, time)
-    ok = np.flatnonzero(light.radiance.max(axis=0) > 0.0)
+    direction = light.direction.astype(cs.dtype)
+    t_max = (light.distance * (1.0 - SHADOW_EPSILON)).astype(cs.dtype)
+    ok = light.radiance.max(axis=0) > 0.0
+    if cs.media.sealed is not None:
+        # fog in a glass ball: its light samples outside the ball are blocked by the glass
+        ok &= ~sealed_in(cs.media.sealed, current_medium(live.media_mask.take(rows)), origin, direction, t_max)
+    ok = np.flatnonzero(ok)
     rows, pdf = rows.take(ok), light.pdf.take(ok)
     contribution = (gather(live.throughput, rows) * gather(albedo, rows) * gather(light.radiance, ok)
                     * (ISOTROPIC_PDF * mis_weight(pdf, ISOTROPIC_PDF) / pdf))
-    return ShadowBatch(origin=gather(origin, ok), direction=gather(light.direction, ok).astype(cs.dtype),
-                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
+    return ShadowBatch(origin=gather(origin, ok), direction=gather(direction, ok), t_max=t_max.take(ok),
                        contribution=contribution, slot=live.slot.take(rows),
                        time=None if time is None else time.take(ok), media_mask=live.media_mask.take(rows))
+
+
+def sealed_in(sealed, medium, origin, direction, t_max) -> np.ndarray:
+    """``(N,)``: shadow rays certainly blocked by the visible sphere that
+    seals their medium (``MediumTable.sealed``; ``medium (N,)`` each ray's
+    medium, -1 for none): the origin lies inside the sphere and the ray
+    leaves it at ``T_MIN < t < t_max``, each by the table's margin, far above
+    the rounding of the exact sphere test the any-hit query would run, so the
+    query would find that hit.  Such a ray adds nothing; dropping it before
+    the query changes no pixel.  (Mitsuba's ``volpath`` traces them: glass
+    blocks shadow rays there too.)"""
+    center, inner, margin = sealed
+    valid = medium >= 0
+    m = np.where(valid, medium, 0)
+    inner, margin = inner.take(m), margin.take(m)  # NaN for unsealed media: every comparison false
+    oc = center.take(m, axis=1) - origin.astype(np.float64)
+    d = direction.astype(np.float64)
+    oc2 = dot(oc, oc)
+    h = dot(oc, d)  # |d| = 1: the exit is at h + sqrt(r^2 - (|oc|^2 - h^2))
+    radius = inner + margin
+    with np.errstate(invalid="ignore"):
+        exit_t = h + np.sqrt(radius * radius - oc2 + h * h)
+    return (valid & (oc2 < inner * inner) & (exit_t > T_MIN + margin)
+            & (exit_t < t_max.astype(np.float64) - margin))
 
 
 def cross_interfaces(cs: CompiledScene, live: PathBatch, surface, direction, absorbed) -> None:
