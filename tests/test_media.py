@@ -363,6 +363,30 @@ def test_dropping_sealed_shadow_rays_changes_no_pixel(monkeypatch):
     np.testing.assert_array_equal(culled.image, traced.image)
 
 
+def balls_in_mist_scene():
+    """125 balls (a BVH) and a glass ball of dense fog, under a lamp, all in
+    a mist the camera is inside: capped hit queries in both media."""
+    grid = np.linspace(-1.2, 1.2, 5)
+    balls = [Sphere((float(x), float(y) + 1.5, float(z)), 0.2, "white") for x in grid for y in grid for z in grid]
+    scene = fog_in_glass_scene()
+    return scene.replace(spheres=scene.spheres + balls, materials=scene.materials | {"white": Lambertian((0.7, 0.7, 0.7))},
+                         media=scene.media + [Medium(Sphere((0, 1, 0), 8.0, 0), 0.4, (0.9, 0.9, 0.9))],
+                         render=dataclasses.replace(scene.render, samples_per_pixel=8))
+
+
+@pytest.mark.parametrize("name", ["balls_in_mist", "lamp_in_fog", "cornell_smoke"])
+def test_capped_hit_queries_in_media_change_no_pixel(name, monkeypatch):
+    """intersect_in_media stops a medium path's hit query just past its first
+    free flight: the image must be the one of full queries, bit for bit."""
+    scene = {"balls_in_mist": balls_in_mist_scene, "lamp_in_fog": lambda: lamp_in_fog_scene(),
+             "cornell_smoke": lambda: load_scene(SCENES / "cornell_smoke.yaml").with_overrides(
+                 width=12, height=12, samples_per_pixel=4)}[name]()
+    capped = render(scene, workers=1)
+    monkeypatch.setattr(wavefront.path, "intersect_in_media", lambda cs, live: (
+        cs.shapes.intersect(live.origin, live.direction, time=live.time), None))
+    np.testing.assert_array_equal(render(scene, workers=1), capped)
+
+
 # -- light sampling at medium vertices --------------------------------------------------
 
 def foggy_lit_scene():

@@ -88,6 +88,10 @@ SHADOW_EPSILON = 1e-4
 # Roulette never keeps a path with certainty (Mitsuba's cap): a path whose
 # throughput stays near 1 (a white furnace) still ends in finite time.
 ROULETTE_MAX_SURVIVAL = 0.95
+# A hit query in a medium stops this fraction (plus T_MIN) past the first
+# free-flight distance (intersect_in_media): far above float32 rounding
+# (6e-8), so the cap lies past the distance in any precision.
+FLIGHT_CAP_SLACK = 1e-6
 
 
 @dataclass
@@ -191,10 +195,12 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
-        hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
         in_medium = None
-        if cs.media is not None:
-            live, hits, in_medium, point = travel_media(cs, live, hits)
+        if cs.media is None:
+            hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
+        else:
+            hits, first = intersect_in_media(cs, live)
+            live, hits, in_medium, point = travel_media(cs, live, hits, first)
             if len(in_medium):
                 in_medium = scatter_in_media(cs, in_medium, point, emitters, radiance, stats)
         live, surface = escaped(cs, live, hits, radiance)
@@ -447,7 +453,7 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
 
 # -- participating media (wavefront.media) ----------------------------------------
 
-def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
+def walk_boundaries(media, origin, direction, t_end, mask, visit, first: Hits | None = None) -> np.ndarray:
     """Visit the pieces of the segments ``origin + t direction``, ``0 <= t <
     t_end``, between the invisible media boundaries they cross, in order.
 
@@ -461,7 +467,10 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
     ``origin``: a path's hit was found from its vertex, and a restart on a
     boundary only looks for the next boundary.  Returns the rows that would
     cross more than ``CROSSINGS_PER_SEGMENT - 1`` boundaries (unvisited past
-    that: rounding trouble, not light).
+    that: rounding trouble, not light).  ``first``, if given, is the first
+    piece's boundary query already made without a ``t_max`` (see
+    :func:`first_boundaries`); its hits at or past the piece's end are not
+    crossings, exactly as the query with that ``t_max`` would not return them.
     """
     row = np.arange(t_end.shape[0])
     start = np.zeros(row.size, dtype=np.float64)
@@ -474,8 +483,13 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
         back = start - RESTART_BACKOFF
         o = gather(origin, row) + back.astype(d.dtype) * d
         if media.boundaries is not None:
-            hits = boundary_hits(media, o, d, (end - back - COINCIDENT).astype(o.dtype))
-            crossing = hits.primitive_idx >= 0
+            t_max = (end - back - COINCIDENT).astype(o.dtype)
+            if piece == 0 and first is not None:
+                hits = first
+                crossing = (hits.primitive_idx >= 0) & (hits.t < t_max)
+            else:
+                hits = boundary_hits(media, o, d, t_max)
+                crossing = hits.primitive_idx >= 0
             stop = np.where(crossing, back + hits.t, end)
         else:
             crossing, stop = np.zeros(row.size, dtype=bool), end
@@ -520,7 +534,59 @@ def boundary_hits(media, origin, direction, t_max) -> Hits:
     return Hits(t, primitive)
 
 
-def travel_media(cs: CompiledScene, live: PathBatch, hits):
+def first_boundaries(media, origin, direction) -> Hits:
+    """The first piece's boundary query of :func:`walk_boundaries` (from
+    the same backed-off origins, bit for bit) with no ``t_max``."""
+    back = np.full(origin.shape[1], -RESTART_BACKOFF)  # the walk's start (0) less the back-off
+    o = origin + back.astype(direction.dtype) * direction
+    return boundary_hits(media, o, direction, np.full(origin.shape[1], np.inf, dtype=o.dtype))
+
+
+def intersect_in_media(cs: CompiledScene, live: PathBatch):
+    """Stage 2 in a scene with media: the paths' hits, asking the
+    intersector no further than needed (fewer BVH nodes to walk).
+
+    A path in a medium draws its first free flight ``t0`` (the first piece's
+    number, as :func:`travel_media` will) before its hit is known.  Where the
+    first boundary along the ray lies beyond ``t0`` (so the walk's first piece
+    reaches ``t0`` whatever the hit), the hit only matters if it is nearer
+    than ``t0``: the query stops at a cap just past ``t0``.  A hit found
+    there is the hit (the nearest), bit for bit; a path that finds none
+    scatters at ``t0`` in the walk, as it would have, and its ``t`` is set to
+    the cap (a finite end, nearer than any hit, so the walk's first piece
+    ends past ``t0``).  In dense fog (the blue ball of RTOW's final scene)
+    most paths scatter within a few units: their queries prune most of the
+    tree.  Returns (hits, the first piece's boundary hits for the walk, or
+    None when the scene's media have no invisible boundaries).
+    """
+    media = cs.media
+    if media.boundaries is None:
+        return cs.shapes.intersect(live.origin, live.direction, time=live.time), None
+    first = first_boundaries(media, live.origin, live.direction)
+    medium = current_medium(live.media_mask)
+    rows = np.flatnonzero((medium >= 0) & (first.primitive_idx >= 0))
+    if rows.size == 0:
+        return cs.shapes.intersect(live.origin, live.direction, time=live.time), first
+    u = uniform_pairs_at(live.state.take(rows), medium_dimension(live.depth.take(rows), 0))[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = -np.log1p(-u) / media.density.take(medium.take(rows))
+        # the cap: past t0 by far more than rounding to the render's precision
+        cap = (t0 + (FLIGHT_CAP_SLACK * t0 + T_MIN)).astype(cs.dtype)
+        # the first piece ends at the boundary (the walk's start less its back-off, plus t) or the hit
+        capped = (cap < np.inf) & (first.t.take(rows) - RESTART_BACKOFF > cap.astype(np.float64))
+    rows, cap = rows.take(np.flatnonzero(capped)), cap.take(np.flatnonzero(capped))
+    t_max = np.full(len(live), np.inf, dtype=cs.dtype)
+    t_max[rows] = cap
+    hits = cs.shapes.intersect(live.origin, live.direction, t_max, time=live.time)
+    missed = np.flatnonzero(hits.primitive_idx.take(rows) < 0)
+    if missed.size:
+        t = hits.t.copy()
+        t[rows.take(missed)] = cap.take(missed)
+        hits = Hits(t, hits.primitive_idx)
+    return hits, first
+
+
+def travel_media(cs: CompiledScene, live: PathBatch, hits, first: Hits | None = None):
     """Stage 2b (scenes with media): free flight between each path's vertex
     and its hit.
 
@@ -557,7 +623,7 @@ def travel_media(cs: CompiledScene, live: PathBatch, hits):
         return ended
 
     mask = live.media_mask.copy()
-    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight)
+    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight, first)
     live.media_mask = mask
     scatters = t_scatter < np.inf
     in_idx = np.flatnonzero(scatters)
