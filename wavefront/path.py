@@ -10,7 +10,8 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
    **media** (scenes with participating media, :func:`travel_media`): free
    flight through the media between each path's vertex and its hit,
    crossing invisible boundaries; paths that scatter in a medium take
-   stages 5-9 there (:func:`scatter_in_media`) and rejoin at 9;
+   stages 5-9 there (:func:`scatter_in_media`; their shadow rays join the
+   surfaces' in stage 6) and rejoin at 9;
 3. **escaped** paths add ``throughput * background`` and end;
 4. **emitted**: paths that hit an emitter end; those that struck its front
    side add ``throughput * color``;
@@ -195,22 +196,26 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
-        in_medium = None
+        in_medium = shadows = None
         if cs.media is None:
             hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
         else:
             hits, first = intersect_in_media(cs, live)
             live, hits, in_medium, point = travel_media(cs, live, hits, first)
             if len(in_medium):
-                in_medium = scatter_in_media(cs, in_medium, point, emitters, radiance, stats)
+                in_medium, shadows = scatter_in_media(cs, in_medium, point, emitters)
         live, surface = escaped(cs, live, hits, radiance)
         if len(live):
             absorbed = emitted(cs, live, surface, radiance, emitters)
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
-                shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth, albedo)
-                trace_shadow_rays(cs, shadows, radiance, stats)
+                # one any-hit query for the shadow rays of medium and surface vertices alike
+                shadows = ShadowBatch.concat(shadows, sample_lights(cs, emitters, live, surface, diffuse, absorbed,
+                                                                    settings.depth, albedo))
+        if shadows is not None:
+            trace_shadow_rays(cs, shadows, radiance, stats)
+        if len(live):
             direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed, albedo)
             if diffuse is not None:
                 record_sampling(cs, live, surface, diffuse, direction)
@@ -653,19 +658,20 @@ def shadow_transmittance(cs: CompiledScene, origin, direction, t_max, mask) -> n
     return fraction
 
 
-def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radiance, stats: TraceStats) -> PathBatch:
+def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters) -> tuple[PathBatch, ShadowBatch | None]:
     """Stages 5-9 for vertices in media: a light sample (its shadow ray
     attenuated by transmittance), then the isotropic phase function's sample
     (uniform on the sphere, pdf ``1 / (4 pi)``, so the throughput is
     multiplied by the albedo alone), roulette, and the next segment.  A black
     medium (albedo 0) is a pure absorber: its paths end here.  Returns the
-    paths that go on."""
+    paths that go on and the light samples' shadow rays (None without light
+    sampling), which the caller traces with the surfaces' (stage 6)."""
     settings = cs.scene.render
     albedo = medium_albedo(cs.media, current_medium(live.media_mask), point)
     absorbed = albedo.max(axis=0) <= 0.0
+    shadows = None
     if emitters is not None:
         shadows = sample_lights_in_media(cs, emitters, live, point, albedo, absorbed, settings.depth)
-        trace_shadow_rays(cs, shadows, radiance, stats)
     u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
     direction = random_unit_vector(u[0], u[1])
     live.throughput *= albedo
@@ -677,7 +683,7 @@ def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radian
     live.direction = direction
     live.depth += 1
     alive = ~absorbed & (live.depth < settings.depth)
-    return live if alive.all() else live.take(np.flatnonzero(alive))
+    return (live if alive.all() else live.take(np.flatnonzero(alive))), shadows
 
 
 def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, albedo, absorbed,
