@@ -38,6 +38,7 @@ STAGES = (
     ("  emitter samplers", "lights.py", "sample"),
     ("light sampling: shadow rays (any-hit)", "path.py", "trace_shadow_rays"),
     ("MIS weights of emission hits", "path.py", "emission_weight"),
+    ("media: the first boundary query (before the hit query)", "path.py", "first_boundaries"),
     ("media: free flight and boundary crossings", "path.py", "travel_media"),
     ("media: scattering and light samples in media", "path.py", "scatter_in_media"),
     ("media: shadow-ray transmittance", "path.py", "shadow_transmittance"),

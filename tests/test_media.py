@@ -318,6 +318,79 @@ def test_fog_inside_a_glass_ball_is_entered_through_the_glass():
     assert abs(z_score(image, math.exp(-2 * density * radius))) < 4.5
 
 
+def fog_in_glass_scene(radius=0.5):
+    """The lit floor with its ball turned to glass full of dense fog (RTOW's final scene's blue ball)."""
+    scene = lit_scene()
+    return scene.replace(materials=scene.materials | {"ball": Dielectric(1.5)},
+                         media=[Medium(Sphere((0, 0.5, 0), radius, 0), 2.0, (0.2, 0.4, 0.9))])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_shadow_rays_dropped_in_sealed_fog_are_all_blocked(seed):
+    """``sealed_in`` drops only shadow rays the any-hit query finds blocked
+    (origins inside, on and just outside the glass; targets inside and out),
+    and it does drop most of those from deep inside."""
+    compiled = fog_in_glass_scene().compile()
+    assert compiled.media.sealed is not None
+    rng = np.random.default_rng(seed)
+    n = 2000
+    center = np.array([[0.0], [0.5], [0.0]])
+    origin = center + random_in_ball(rng, n, 0.52)
+    target = center + random_in_ball(rng, n, 3.0)
+    offset = target - origin
+    distance = np.linalg.norm(offset, axis=0)
+    direction = (offset / distance).astype(compiled.dtype)
+    t_max = (distance * (1.0 - wavefront.path.SHADOW_EPSILON)).astype(compiled.dtype)
+    origin = origin.astype(compiled.dtype)
+    medium = np.zeros(n, dtype=np.int64)
+    dropped = wavefront.path.sealed_in(compiled.media.sealed, medium, origin, direction, t_max)
+    blocked = compiled.shapes.occluded(origin, direction, t_max)
+    assert blocked[dropped].all()
+    deep_and_leaving = (np.linalg.norm(origin - center, axis=0) < 0.45) & (np.linalg.norm(target - center, axis=0) > 0.55)
+    assert dropped[deep_and_leaving].all()
+    # a path in no medium (-1) is never culled
+    assert not wavefront.path.sealed_in(compiled.media.sealed, medium - 1, origin, direction, t_max).any()
+
+
+def random_in_ball(rng, n, radius):
+    v = rng.normal(size=(3, n))
+    return v / np.linalg.norm(v, axis=0) * radius * rng.random(n) ** (1 / 3)
+
+
+def test_dropping_sealed_shadow_rays_changes_no_pixel(monkeypatch):
+    scene = fog_in_glass_scene()
+    culled = render_scene(scene, workers=1)
+    monkeypatch.setattr(wavefront.path, "sealed_in", lambda sealed, medium, *rest: np.zeros(medium.shape, dtype=bool))
+    traced = render_scene(scene, workers=1)
+    assert culled.stats.shadow_rays < traced.stats.shadow_rays
+    np.testing.assert_array_equal(culled.image, traced.image)
+
+
+def balls_in_mist_scene():
+    """125 balls (a BVH) and a glass ball of dense fog, under a lamp, all in
+    a mist the camera is inside: capped hit queries in both media."""
+    grid = np.linspace(-1.2, 1.2, 5)
+    balls = [Sphere((float(x), float(y) + 1.5, float(z)), 0.2, "white") for x in grid for y in grid for z in grid]
+    scene = fog_in_glass_scene()
+    return scene.replace(spheres=scene.spheres + balls, materials=scene.materials | {"white": Lambertian((0.7, 0.7, 0.7))},
+                         media=scene.media + [Medium(Sphere((0, 1, 0), 8.0, 0), 0.4, (0.9, 0.9, 0.9))],
+                         render=dataclasses.replace(scene.render, samples_per_pixel=8))
+
+
+@pytest.mark.parametrize("name", ["balls_in_mist", "lamp_in_fog", "cornell_smoke"])
+def test_capped_hit_queries_in_media_change_no_pixel(name, monkeypatch):
+    """intersect_in_media stops a medium path's hit query just past its first
+    free flight: the image must be the one of full queries, bit for bit."""
+    scene = {"balls_in_mist": balls_in_mist_scene, "lamp_in_fog": lambda: lamp_in_fog_scene(),
+             "cornell_smoke": lambda: load_scene(SCENES / "cornell_smoke.yaml").with_overrides(
+                 width=12, height=12, samples_per_pixel=4)}[name]()
+    capped = render(scene, workers=1)
+    monkeypatch.setattr(wavefront.path, "intersect_in_media", lambda cs, live: (
+        cs.shapes.intersect(live.origin, live.direction, time=live.time), None))
+    np.testing.assert_array_equal(render(scene, workers=1), capped)
+
+
 # -- light sampling at medium vertices --------------------------------------------------
 
 def foggy_lit_scene():

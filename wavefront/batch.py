@@ -75,3 +75,12 @@ class ShadowBatch:
 
     def __len__(self) -> int:
         return self.slot.shape[0]
+
+    @staticmethod
+    def concat(a: ShadowBatch | None, b: ShadowBatch) -> ShadowBatch:
+        """``a``'s rays then ``b``'s (``a`` may be None or empty)."""
+        if a is None or len(a) == 0:
+            return b
+        return ShadowBatch(*(None if getattr(a, f.name) is None or getattr(b, f.name) is None else
+                             np.concatenate((getattr(a, f.name), getattr(b, f.name)), axis=-1)
+                             for f in fields(a)))

@@ -195,15 +195,21 @@ class EmitterTable:
         u = u.astype(np.float64, copy=False)
         e = self.choose(u_choice)
         n = ref.shape[1]
-        point, normal, pdf = np.empty((3, n)), np.empty((3, n)), np.empty(n)
-        kind = self.kind.take(e)
-        for code, sampler in ((SPHERE, self._sample_spheres), (QUAD, self._sample_quads),
-                              (TRIANGLE, self._sample_triangles)):
-            sel = np.flatnonzero(kind == code)
-            if sel.size:
-                p, nrm, pd = sampler(e.take(sel), gather(ref, sel), gather(u, sel),
-                                     None if time is None else time.take(sel))
-                point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
+        samplers = ((SPHERE, self._sample_spheres), (QUAD, self._sample_quads), (TRIANGLE, self._sample_triangles))
+        if self.kind.min() == self.kind.max():
+            # one kind of emitter (RTOW's scenes: quad lights): no routing,
+            # no gathers and scatters of every sample (each sampler returns new arrays)
+            kind = np.broadcast_to(self.kind[0], e.shape)
+            point, normal, pdf = dict(samplers)[int(self.kind[0])](e, ref, u, time)
+        else:
+            point, normal, pdf = np.empty((3, n)), np.empty((3, n)), np.empty(n)
+            kind = self.kind.take(e)
+            for code, sampler in samplers:
+                sel = np.flatnonzero(kind == code)
+                if sel.size:
+                    p, nrm, pd = sampler(e.take(sel), gather(ref, sel), gather(u, sel),
+                                         None if time is None else time.take(sel))
+                    point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
         to_light = point - ref
         distance = np.sqrt(dot(to_light, to_light))
         direction = to_light / np.maximum(distance, np.finfo(np.float64).tiny)

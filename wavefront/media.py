@@ -278,6 +278,12 @@ class MediumTable:
     # albedo is a plain colour; ``albedo`` then holds them, else the means).
     textures: TextureTable | None = None
     albedo_node: np.ndarray | None = None  # (K,) int64
+    # Media sealed inside one visible sphere (RTOW's fog in a glass ball):
+    # per bit, the sphere's centre (3, K) float64, its radius less a margin
+    # (K,) and the margin (K,), NaN for other media; None when there are none.
+    # A shadow ray that certainly leaves such a sphere is certainly blocked
+    # by it (see path.sealed_in): it need not be traced.
+    sealed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return self.density.shape[0]

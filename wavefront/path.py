@@ -10,7 +10,8 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
    **media** (scenes with participating media, :func:`travel_media`): free
    flight through the media between each path's vertex and its hit,
    crossing invisible boundaries; paths that scatter in a medium take
-   stages 5-9 there (:func:`scatter_in_media`) and rejoin at 9;
+   stages 5-9 there (:func:`scatter_in_media`; their shadow rays join the
+   surfaces' in stage 6) and rejoin at 9;
 3. **escaped** paths add ``throughput * background`` and end;
 4. **emitted**: paths that hit an emitter end; those that struck its front
    side add ``throughput * color``;
@@ -101,6 +102,10 @@ SHADOW_EPSILON = 1e-4
 # Roulette never keeps a path with certainty (Mitsuba's cap): a path whose
 # throughput stays near 1 (a white furnace) still ends in finite time.
 ROULETTE_MAX_SURVIVAL = 0.95
+# A hit query in a medium stops this fraction (plus T_MIN) past the first
+# free-flight distance (intersect_in_media): far above float32 rounding
+# (6e-8), so the cap lies past the distance in any precision.
+FLIGHT_CAP_SLACK = 1e-6
 
 
 @dataclass
@@ -204,20 +209,26 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
-        hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
-        in_medium = None
-        if cs.media is not None:
-            live, hits, in_medium, point = travel_media(cs, live, hits)
+        in_medium = shadows = None
+        if cs.media is None:
+            hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
+        else:
+            hits, first = intersect_in_media(cs, live)
+            live, hits, in_medium, point = travel_media(cs, live, hits, first)
             if len(in_medium):
-                in_medium = scatter_in_media(cs, in_medium, point, emitters, radiance, stats)
+                in_medium, shadows = scatter_in_media(cs, in_medium, point, emitters)
         live, surface = escaped(cs, live, hits, radiance)
         if len(live):
             absorbed = emitted(cs, live, surface, radiance, emitters)
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
-                shadows = sample_lights(cs, emitters, live, surface, diffuse, absorbed, settings.depth, albedo)
-                trace_shadow_rays(cs, shadows, radiance, stats)
+                # one any-hit query for the shadow rays of medium and surface vertices alike
+                shadows = ShadowBatch.concat(shadows, sample_lights(cs, emitters, live, surface, diffuse, absorbed,
+                                                                    settings.depth, albedo))
+        if shadows is not None:
+            trace_shadow_rays(cs, shadows, radiance, stats)
+        if len(live):
             direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed, albedo)
             if diffuse is not None:
                 record_sampling(cs, live, surface, diffuse, direction)
@@ -460,7 +471,7 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
 
 # -- participating media (wavefront.media) ----------------------------------------
 
-def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
+def walk_boundaries(media, origin, direction, t_end, mask, visit, first: Hits | None = None) -> np.ndarray:
     """Visit the pieces of the segments ``origin + t direction``, ``0 <= t <
     t_end``, between the invisible media boundaries they cross, in order.
 
@@ -475,7 +486,10 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
     boundary only looks for the next boundary.  Returns the rows that would
     cross more than ``CROSSINGS_PER_SEGMENT - 1`` boundaries (unvisited past
     that: rounding trouble, not light).  The first piece's search
-    starts ``FIRST_BACKOFF`` behind ``origin``.
+    starts ``FIRST_BACKOFF`` behind ``origin``.  ``first``, if given, is the
+    first piece's boundary query already made without a ``t_max`` (see
+    :func:`first_boundaries`); its hits at or past the piece's end are not
+    crossings, exactly as the query with that ``t_max`` would not return them.
     """
     row = np.arange(t_end.shape[0])
     start = np.zeros(row.size, dtype=np.float64)
@@ -488,8 +502,13 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit) -> np.ndarray:
         back = start - (RESTART_BACKOFF if piece else FIRST_BACKOFF)
         o = gather(origin, row) + back.astype(d.dtype) * d
         if media.boundaries is not None:
-            hits = boundary_hits(media, o, d, (end - back - COINCIDENT).astype(o.dtype))
-            crossing = hits.primitive_idx >= 0
+            t_max = (end - back - COINCIDENT).astype(o.dtype)
+            if piece == 0 and first is not None:
+                hits = first
+                crossing = (hits.primitive_idx >= 0) & (hits.t < t_max)
+            else:
+                hits = boundary_hits(media, o, d, t_max)
+                crossing = hits.primitive_idx >= 0
             stop = np.where(crossing, np.maximum(back + hits.t, start), end)  # one behind the origin: at it
         else:
             crossing, stop = np.zeros(row.size, dtype=bool), end
@@ -534,7 +553,59 @@ def boundary_hits(media, origin, direction, t_max) -> Hits:
     return Hits(t, primitive)
 
 
-def travel_media(cs: CompiledScene, live: PathBatch, hits):
+def first_boundaries(media, origin, direction) -> Hits:
+    """The first piece's boundary query of :func:`walk_boundaries` (from
+    the same backed-off origins, bit for bit) with no ``t_max``."""
+    back = np.full(origin.shape[1], -FIRST_BACKOFF)  # the walk's start (0) less the first piece's back-off
+    o = origin + back.astype(direction.dtype) * direction
+    return boundary_hits(media, o, direction, np.full(origin.shape[1], np.inf, dtype=o.dtype))
+
+
+def intersect_in_media(cs: CompiledScene, live: PathBatch):
+    """Stage 2 in a scene with media: the paths' hits, asking the
+    intersector no further than needed (fewer BVH nodes to walk).
+
+    A path in a medium draws its first free flight ``t0`` (the first piece's
+    number, as :func:`travel_media` will) before its hit is known.  Where the
+    first boundary along the ray lies beyond ``t0`` (so the walk's first piece
+    reaches ``t0`` whatever the hit), the hit only matters if it is nearer
+    than ``t0``: the query stops at a cap just past ``t0``.  A hit found
+    there is the hit (the nearest), bit for bit; a path that finds none
+    scatters at ``t0`` in the walk, as it would have, and its ``t`` is set to
+    the cap (a finite end, nearer than any hit, so the walk's first piece
+    ends past ``t0``).  In dense fog (the blue ball of RTOW's final scene)
+    most paths scatter within a few units: their queries prune most of the
+    tree.  Returns (hits, the first piece's boundary hits for the walk, or
+    None when the scene's media have no invisible boundaries).
+    """
+    media = cs.media
+    if media.boundaries is None:
+        return cs.shapes.intersect(live.origin, live.direction, time=live.time), None
+    first = first_boundaries(media, live.origin, live.direction)
+    medium = current_medium(live.media_mask)
+    rows = np.flatnonzero((medium >= 0) & (first.primitive_idx >= 0))
+    if rows.size == 0:
+        return cs.shapes.intersect(live.origin, live.direction, time=live.time), first
+    u = uniform_pairs_at(live.state.take(rows), medium_dimension(live.depth.take(rows), 0))[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = -np.log1p(-u) / media.density.take(medium.take(rows))
+        # the cap: past t0 by far more than rounding to the render's precision
+        cap = (t0 + (FLIGHT_CAP_SLACK * t0 + T_MIN)).astype(cs.dtype)
+        # the first piece ends at the boundary (the walk's start less its back-off, plus t) or the hit
+        capped = (cap < np.inf) & (first.t.take(rows) - FIRST_BACKOFF > cap.astype(np.float64))
+    rows, cap = rows.take(np.flatnonzero(capped)), cap.take(np.flatnonzero(capped))
+    t_max = np.full(len(live), np.inf, dtype=cs.dtype)
+    t_max[rows] = cap
+    hits = cs.shapes.intersect(live.origin, live.direction, t_max, time=live.time)
+    missed = np.flatnonzero(hits.primitive_idx.take(rows) < 0)
+    if missed.size:
+        t = hits.t.copy()
+        t[rows.take(missed)] = cap.take(missed)
+        hits = Hits(t, hits.primitive_idx)
+    return hits, first
+
+
+def travel_media(cs: CompiledScene, live: PathBatch, hits, first: Hits | None = None):
     """Stage 2b (scenes with media): free flight between each path's vertex
     and its hit.
 
@@ -571,7 +642,7 @@ def travel_media(cs: CompiledScene, live: PathBatch, hits):
         return ended
 
     mask = live.media_mask.copy()
-    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight)
+    lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight, first)
     live.media_mask = mask
     scatters = t_scatter < np.inf
     in_idx = np.flatnonzero(scatters)
@@ -601,19 +672,20 @@ def shadow_transmittance(cs: CompiledScene, origin, direction, t_max, mask) -> n
     return fraction
 
 
-def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radiance, stats: TraceStats) -> PathBatch:
+def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters) -> tuple[PathBatch, ShadowBatch | None]:
     """Stages 5-9 for vertices in media: a light sample (its shadow ray
     attenuated by transmittance), then the isotropic phase function's sample
     (uniform on the sphere, pdf ``1 / (4 pi)``, so the throughput is
     multiplied by the albedo alone), roulette, and the next segment.  A black
     medium (albedo 0) is a pure absorber: its paths end here.  Returns the
-    paths that go on."""
+    paths that go on and the light samples' shadow rays (None without light
+    sampling), which the caller traces with the surfaces' (stage 6)."""
     settings = cs.scene.render
     albedo = medium_albedo(cs.media, current_medium(live.media_mask), point)
     absorbed = albedo.max(axis=0) <= 0.0
+    shadows = None
     if emitters is not None:
         shadows = sample_lights_in_media(cs, emitters, live, point, albedo, absorbed, settings.depth)
-        trace_shadow_rays(cs, shadows, radiance, stats)
     u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
     direction = random_unit_vector(u[0], u[1])
     live.throughput *= albedo
@@ -625,7 +697,7 @@ def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters, radian
     live.direction = direction
     live.depth += 1
     alive = ~absorbed & (live.depth < settings.depth)
-    return live if alive.all() else live.take(np.flatnonzero(alive))
+    return (live if alive.all() else live.take(np.flatnonzero(alive))), shadows
 
 
 def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, albedo, absorbed,
@@ -642,14 +714,43 @@ def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, 
     origin = gather(point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(origin, u_choice, u_point, time)
-    ok = np.flatnonzero(light.radiance.max(axis=0) > 0.0)
+    direction = light.direction.astype(cs.dtype)
+    t_max = (light.distance * (1.0 - SHADOW_EPSILON)).astype(cs.dtype)
+    ok = light.radiance.max(axis=0) > 0.0
+    if cs.media.sealed is not None:
+        # fog in a glass ball: its light samples outside the ball are blocked by the glass
+        ok &= ~sealed_in(cs.media.sealed, current_medium(live.media_mask.take(rows)), origin, direction, t_max)
+    ok = np.flatnonzero(ok)
     rows, pdf = rows.take(ok), light.pdf.take(ok)
     contribution = (gather(live.throughput, rows) * gather(albedo, rows) * gather(light.radiance, ok)
                     * (ISOTROPIC_PDF * mis_weight(pdf, ISOTROPIC_PDF) / pdf))
-    return ShadowBatch(origin=gather(origin, ok), direction=gather(light.direction, ok).astype(cs.dtype),
-                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
+    return ShadowBatch(origin=gather(origin, ok), direction=gather(direction, ok), t_max=t_max.take(ok),
                        contribution=contribution, slot=live.slot.take(rows),
                        time=None if time is None else time.take(ok), media_mask=live.media_mask.take(rows))
+
+
+def sealed_in(sealed, medium, origin, direction, t_max) -> np.ndarray:
+    """``(N,)``: shadow rays certainly blocked by the visible sphere that
+    seals their medium (``MediumTable.sealed``; ``medium (N,)`` each ray's
+    medium, -1 for none): the origin lies inside the sphere and the ray
+    leaves it at ``T_MIN < t < t_max``, each by the table's margin, far above
+    the rounding of the exact sphere test the any-hit query would run, so the
+    query would find that hit.  Such a ray adds nothing; dropping it before
+    the query changes no pixel.  (Mitsuba's ``volpath`` traces them: glass
+    blocks shadow rays there too.)"""
+    center, inner, margin = sealed
+    valid = medium >= 0
+    m = np.where(valid, medium, 0)
+    inner, margin = inner.take(m), margin.take(m)  # NaN for unsealed media: every comparison false
+    oc = center.take(m, axis=1) - origin.astype(np.float64)
+    d = direction.astype(np.float64)
+    oc2 = dot(oc, oc)
+    h = dot(oc, d)  # |d| = 1: the exit is at h + sqrt(r^2 - (|oc|^2 - h^2))
+    radius = inner + margin
+    with np.errstate(invalid="ignore"):
+        exit_t = h + np.sqrt(radius * radius - oc2 + h * h)
+    return (valid & (oc2 < inner * inner) & (exit_t > T_MIN + margin)
+            & (exit_t < t_max.astype(np.float64) - margin))
 
 
 def cross_interfaces(cs: CompiledScene, live: PathBatch, surface, direction, absorbed) -> None:

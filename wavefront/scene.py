@@ -440,6 +440,8 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
               "QuadSet": lambda k: np.concatenate((k.corner, k.u, k.v)),
               "TriangleSet": lambda k: np.concatenate((k.v0, k.e1, k.e2))}
     kinds = []
+    # media sealed inside one visible sphere (see MediumTable.sealed): centre, radius
+    sealed_center, sealed_radius = np.full((3, volume.size), np.nan), np.full(volume.size, np.nan)
     for name, parts in rows.items():
         if not parts:
             continue
@@ -448,6 +450,9 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
         for m, wanted, build in parts:
             same = _matching_rows(have, wanted)
             interface[offset.get(name, 0) + same[same >= 0]] = m
+            if name == "SphereSet" and same[0] >= 0:  # the sphere's own values, as the intersector holds them
+                sealed_center[:, m] = visible[name].center[:, same[0]]
+                sealed_radius[m] = visible[name].radius[same[0]]
             keep.append(build[same < 0])
             medium_idx.append(np.full(keep[-1].shape[0], m, dtype=np.int32))
         r, medium_idx = np.concatenate(keep), np.concatenate(medium_idx)
@@ -478,7 +483,20 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
                        boundaries=build_intersector(boundaries, extent) if len(boundaries) else None,
                        interface_of=interface, camera_mask=np.uint64(camera_mask), bounds=bounds,
                        textures=textures if textured else None,
-                       albedo_node=node.take(medium_of_bit) if textured else None)
+                       albedo_node=node.take(medium_of_bit) if textured else None,
+                       sealed=_sealed(sealed_center, sealed_radius, dtype, extent))
+
+
+def _sealed(center, radius, dtype, extent):
+    """``MediumTable.sealed``: (centre (3, K), radius shrunk by a margin,
+    radius grown by it, margin), or None when no medium is sealed.  The
+    margin is far above the rounding of the exact sphere test in the scene's
+    precision: 1e-4 of the radius (the root's error is a few epsilons of it)
+    plus 64 exact pads of the scene (the rounding of the points' coordinates)."""
+    if np.isnan(radius).all():
+        return None
+    margin = 1e-4 * radius + 64.0 * exact_pad(dtype, extent)
+    return center, radius - margin, margin
 
 
 def _matching_rows(visible: np.ndarray, wanted: np.ndarray) -> np.ndarray:
