@@ -10,7 +10,10 @@ the few that survive it are tested with exactly the arithmetic of the
 brute-force intersector (each kind's ``exact_t``), so both find the same
 primitive at the same ``t`` for every ray, bit for bit.  Where rays reach
 many leaves, each ray's nearest leaves are tested first, in rounds, and
-leaves entered beyond the best hit so far are dropped.  Each level is a
+leaves entered beyond the best hit so far are dropped; in big trees the
+same is done a few levels higher for whole subtrees (``SUBTREE_LEVELS``), so
+a ray that hits nearby does not walk every box along its line down to the
+leaves.  Each level is a
 handful of NumPy calls over all pairs of that level; the Python loop runs
 over the tree's depth (and a few leaf rounds), never over rays.
 
