@@ -57,6 +57,14 @@ def node_major_bvh(prims, extent):
     finally:
         bvh_module.NODE_MAJOR_NODES, bvh_module.BIG_TREE = saved
     bvh.leaf_rounds_above = 0
+    bvh.subtree_depth = 1  # and walking subtrees nearest-first from depth 1
+    return bvh
+
+
+def subtree_rounds_bvh(prims, extent):
+    """A BVH (rows layout) walking subtrees nearest-first from depth 2, as big trees do below the top."""
+    bvh = BVH(prims, extent)
+    bvh.subtree_depth = 2
     return bvh
 
 
@@ -65,7 +73,7 @@ def assert_same_hits(prims, origin, direction, t_max, extent=None):
     if extent is None:
         lo, hi = prims.bounds()
         extent = max(np.abs(origin).max(), np.abs(lo).max(), np.abs(hi).max()) * np.sqrt(3)
-    for bvh in (BVH(prims, extent), node_major_bvh(prims, extent)):
+    for bvh in (BVH(prims, extent), node_major_bvh(prims, extent), subtree_rounds_bvh(prims, extent)):
         hits = bvh.intersect(origin, direction, t_max)
         np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
         np.testing.assert_array_equal(hits.t, brute.t)
