@@ -24,15 +24,6 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-# the scene of bench.py's geometry section, at ~1k and ~1M triangles
-SCENE = """\
-image: {{width: 128, height: 128}}
-camera: {{look_from: [0, 1.6, 2.4], look_at: [0, 0, 0], vfov: 40}}
-render: {{samples_per_pixel: 16, max_depth: 50, seed: 1}}
-background: {{type: sky}}
-materials: {{ground: {{type: lambertian, albedo: [0.6, 0.5, 0.4]}}}}
-meshes: [{{file: {file}, material: ground}}]
-"""
 CHILD = r"""
 import json, sys, time
 sys.path.insert(0, sys.argv[2])
@@ -50,12 +41,13 @@ print(json.dumps({"build": build, "wall": wall, "cpu": cpu, "segments": r.stats.
 
 
 def terrain(folder: Path, triangles: int) -> Path:
+    """The geometry section's terrain scene (written once to ``folder``)."""
     scene = folder / f"terrain_{triangles}.yaml"
     if not scene.exists():
-        ply = folder / f"terrain_{triangles}.ply"
-        subprocess.run([sys.executable, str(ROOT / "scenes" / "make_mesh_models.py"), "--big", str(ply),
-                        "--triangles", str(triangles)], check=True)
-        scene.write_text(SCENE.format(file=ply.name))
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        from bench import terrain_scene  # the same scene as bench.py's geometry section
+
+        return Path(terrain_scene(folder, triangles))
     return scene
 
 
