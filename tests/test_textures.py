@@ -285,7 +285,7 @@ spheres:
     ("{type: image, file: notes.png}", {"notes.png": b"just some text\n"}, "materials.m.albedo.file",
      "not an image"),
     ("{type: image, file: huge.png}", {"huge.png": png_header_only(5000, 5000)}, "materials.m.albedo.file",
-     "the limit is"),
+     "huge.png: the image is 5000x5000"),
     ("{type: image, file: bad.exr}", {"bad.exr": b"\x76\x2f\x31\x01" + b"\0" * 40}, "materials.m.albedo.file",
      "cannot read as OpenEXR"),
     ("{type: image, file: cut.png}", {"cut.png": png_header_only(4, 4)}, "materials.m.albedo.file",

@@ -201,9 +201,10 @@ def texture_from_dict(obj, spec: Mapping, path: str):
 
 # -- images ------------------------------------------------------------------
 
-def _too_big(obj, width: int, height: int) -> None:
+def _too_big(obj, width: int, height: int, file: str | None = None) -> None:
     if width * height > MAX_TEXTURE_PIXELS:
-        fail(obj, "file", f"the image is {width}x{height} = {width * height} pixels; the limit is "
+        where = f"{file}: " if file else ""
+        fail(obj, "file", f"{where}the image is {width}x{height} = {width * height} pixels; the limit is "
                           f"{MAX_TEXTURE_PIXELS} ({MAX_TEXTURE_PIXELS * 12 >> 20} MiB as linear float RGB)")
 
 
@@ -246,7 +247,7 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         if len(shape) < 2:
             fail(obj, "file", f"{file}: not a 2D image (shape {shape})")
         width, height, kind = int(shape[1]), int(shape[0]), "imageio"
-    _too_big(obj, width, height)
+    _too_big(obj, width, height, file)
     return kind, width, height, images
 
 
