@@ -19,8 +19,10 @@ from scipy import stats
 
 import wavefront.path
 from wavefront import (Camera, Dielectric, Emissive, Lambertian, Metal, Quad, RenderSettings, Scene, SceneError,
-                       Solid, Sphere, load_scene, render, render_scene)
+                       Solid, Sphere, load_scene, render)
 from wavefront.scenefile import scene_from_dict
+
+from .test_render import assert_same_on_two_workers
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 DATA = Path(__file__).resolve().parent / "data"
@@ -182,9 +184,7 @@ def test_light_sampling_image_does_not_depend_on_chunk_size(lamp_scene, lamp_ima
 
 
 def test_light_sampling_image_does_not_depend_on_worker_count(lamp_scene, lamp_image):
-    result = render_scene(lamp_scene, workers=2, chunk_size=300, memory=4 << 30)
-    assert result.stats.workers == 2
-    np.testing.assert_array_equal(result.image, lamp_image)
+    assert_same_on_two_workers(lamp_scene, lamp_image, chunk_size=300)
 
 
 def test_cornell_box_bvh_scene_is_deterministic_with_light_sampling():

@@ -33,6 +33,7 @@ from wavefront.transform import Transform
 from .test_cli import run
 from .test_furnace import SCENES
 from .test_light_sampling import book, estimate, rejected, with_settings
+from .test_render import assert_same_on_two_workers
 
 trimesh = pytest.importorskip("trimesh")
 
@@ -467,9 +468,7 @@ def test_media_image_does_not_depend_on_chunk_size(smoke, smoke_image, chunk_siz
 
 
 def test_media_image_does_not_depend_on_worker_count(smoke, smoke_image):
-    result = render_scene(smoke, workers=2, chunk_size=300, memory=4 << 30)
-    assert result.stats.workers == 2
-    np.testing.assert_array_equal(result.image, smoke_image)
+    assert_same_on_two_workers(smoke, smoke_image, chunk_size=300)
 
 
 def test_cornell_smoke_is_book_2s_scene(smoke, smoke_image):

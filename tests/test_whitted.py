@@ -5,8 +5,10 @@ import warnings
 import numpy as np
 import pytest
 
-from wavefront import Camera, Phong, PointLight, RenderSettings, Scene, SceneError, Solid, Sphere, render, render_scene
+from wavefront import Camera, Phong, PointLight, RenderSettings, Scene, SceneError, Solid, Sphere, render
 from wavefront.scenefile import SceneWarning, scene_from_dict
+
+from .test_render import assert_same_on_two_workers
 
 WHITTED = RenderSettings(samples_per_pixel=1, integrator="whitted", max_depth=3)
 BG = (0.2, 0.3, 0.4)
@@ -126,6 +128,4 @@ def test_whitted_image_does_not_depend_on_chunk_size_or_workers():
         width=60, height=34, samples_per_pixel=3)
     reference = render(scene, workers=1)
     np.testing.assert_array_equal(render(scene, workers=1, chunk_size=97), reference)
-    result = render_scene(scene, workers=2, chunk_size=2000, memory=4 << 30)
-    assert result.stats.workers == 2
-    np.testing.assert_array_equal(result.image, reference)
+    assert_same_on_two_workers(scene, reference, chunk_size=2000)
