@@ -319,6 +319,24 @@ def test_fog_inside_a_glass_ball_is_entered_through_the_glass():
     assert abs(z_score(image, math.exp(-2 * density * radius))) < 4.5
 
 
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_a_visible_shape_bounds_its_medium_at_either_precision(precision):
+    """The match of a boundary with a visible shape is made at the render's
+    precision: in a forced float32 render of a ball whose numbers float32
+    cannot hold exactly, the visible ball (held in float32) is still the
+    fog's boundary, and so is a rotated box's every face."""
+    center, radius = (0.1, 0.2, 0.3), 0.7
+    turn = Transform.rotate((1, 1, 0), 33).then(Transform.translate((0.1, 0, 0)))
+    lo, hi = (-0.3, -0.2, -0.1), (0.3, 0.2, 0.1)
+    scene = background_scene([Medium(Sphere(center, radius, 0), 0.3, (0, 0, 0)),
+                              Medium(Box(lo, hi, 0, transform=turn), 0.3, (0, 0, 0))], precision=precision)
+    glass = scene.replace(spheres=[Sphere(center, radius, "glass")], quads=Box(lo, hi, "glass", transform=turn).quads(),
+                          materials={"glass": Dielectric(1.0)})
+    compiled = glass.compile()
+    assert compiled.dtype == np.dtype(precision)
+    assert (compiled.media.interface_of >= 0).all() and compiled.media.boundaries is None
+
+
 def fog_in_glass_scene(radius=0.5):
     """The lit floor with its ball turned to glass full of dense fog (RTOW's final scene's blue ball)."""
     scene = lit_scene()

@@ -448,7 +448,8 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
         have = fields[name](visible[name]).T.astype(np.float64) if name in visible else np.zeros((0, 1))
         keep, medium_idx = [], []
         for m, wanted, build in parts:
-            same = _matching_rows(have, wanted)
+            # compared at the render's precision, the one the visible shapes are held in
+            same = _matching_rows(have, wanted.astype(dtype).astype(np.float64))
             interface[offset.get(name, 0) + same[same >= 0]] = m
             if name == "SphereSet" and same[0] >= 0:  # the sphere's own values, as the intersector holds them
                 sealed_center[:, m] = visible[name].center[:, same[0]]
