@@ -152,6 +152,34 @@ def test_bilinear_lookup_at_texel_centres_and_between(tmp_path):
                            (p[0, 0] + p[0, 1] + p[1, 0] + p[1, 1]) / 4)
 
 
+@pytest.mark.parametrize("filter", ["nearest", "bilinear"])
+def test_repeat_wraps_and_clamp_stops_at_the_edge(tmp_path, filter):
+    """``wrap: repeat`` tiles the picture (u + 1 and v - 2 look up the same
+    texel as u, v); ``clamp`` (the default, RTOW's) holds the edge; each
+    axis takes its own mode."""
+    p = ImageTexture(write_png(tmp_path / "tiny.png", TINY)).pixels.astype(np.float64)
+    repeat = ImageTexture(pixels=p.astype(np.float32), filter=filter, wrap="repeat")
+    clamp = ImageTexture(pixels=p.astype(np.float32), filter=filter)
+    assert clamp.wrap == ("clamp", "clamp") and repeat.wrap == ("repeat", "repeat")
+    uv = np.random.default_rng(5).random((2, 50))
+    base = repeat.lookup(uv)
+    np.testing.assert_allclose(repeat.lookup(uv + np.array([[1.0], [-2.0]])), base, atol=1e-12)
+    np.testing.assert_allclose(repeat.lookup(uv + np.array([[-7.0], [3.0]])), base, atol=1e-12)
+    # at u = 0 (the seam of a globe) a repeating bilinear filter blends the last
+    # column with the first; clamped, it holds the first column
+    on_seam = np.array([[0.0], [0.25]])  # the bottom row's centre line
+    if filter == "bilinear":
+        np.testing.assert_allclose(repeat.lookup(on_seam)[:, 0], (p[1, 0] + p[1, 2]) / 2, atol=1e-6)
+        np.testing.assert_allclose(clamp.lookup(on_seam)[:, 0], p[1, 0], atol=1e-6)
+    else:
+        np.testing.assert_allclose(repeat.lookup(np.array([[1.0], [0.25]]))[:, 0], p[1, 0])  # one past the end: wraps
+        np.testing.assert_allclose(clamp.lookup(np.array([[1.0], [0.25]]))[:, 0], p[1, 2])  # the last column
+    # per axis: u repeats, v clamps (a globe)
+    globe = ImageTexture(pixels=p.astype(np.float32), filter=filter, wrap=["repeat", "clamp"])
+    np.testing.assert_allclose(globe.lookup(np.array([[1.25], [7.0]])), clamp.lookup(np.array([[0.25], [1.0]])),
+                               atol=1e-12)
+
+
 def test_float_images_are_linear(tmp_path):
     import OpenEXR
 
@@ -241,6 +269,9 @@ def test_texture_field_accepts_lists_and_dicts():
     ({"type": "noise", "colour": 1}, "albedo.colour", "unknown key"),
     ({"type": "image"}, "albedo.file", "required key is missing"),
     ({"type": "image", "file": "x.png", "filter": "cubic"}, "albedo.filter", "unknown value"),
+    ({"type": "image", "file": "x.png", "wrap": "mirror"}, "albedo.wrap", "unknown value"),
+    ({"type": "image", "file": "x.png", "wrap": ["repeat"]}, "albedo.wrap", "a list of two"),
+    ({"type": "image", "file": "x.png", "wrap": ["repeat", 3]}, "albedo.wrap[1]", ""),
     ({"type": "checker", "odd": {"type": "noise", "seed": -1}}, "albedo.odd.seed", "must be >= 0"),
 ])
 def test_bad_textures_name_the_path(spec, path, problem):
@@ -297,6 +328,7 @@ spheres:
     ("{type: checker, odd: {type: image, file: gone.png}}", {}, "materials.m.albedo.odd.file", "no such file"),
     ("{type: wood}", {}, "materials.m.albedo.type", "unknown value"),
     ("{type: noise, octaves: 3}", {}, "materials.m.albedo.octaves", "unknown key"),
+    ("{type: image, file: x.png, wrap: [repeat, tile]}", {}, "materials.m.albedo.wrap[1]", "unknown value"),
 ])
 def test_bad_texture_input_through_the_cli(tmp_path, albedo, files, path, problem):
     scene = tmp_path / "scene.yaml"

@@ -50,6 +50,12 @@ RGB = tuple[float, float, float]
 # a hostile file cannot make the loader allocate first.
 MAX_TEXTURE_PIXELS = 1 << 24
 FILTERS = ("bilinear", "nearest")
+# What an image does past its edges, per axis: ``clamp`` (RTOW: the edge
+# texel goes on) or ``repeat`` (pbrt's and Mitsuba's default: the picture
+# tiles).  A globe wants ``[repeat, clamp]``: its ``u`` wraps around at the
+# seam, where a clamped bilinear filter shows a half-texel line, and its
+# ``v`` must not blend one pole with the other.
+WRAPS = ("clamp", "repeat")
 # RTOW's Perlin noise: 256 lattice vectors, and turbulence summed over 7 octaves.
 PERLIN_POINTS = 256
 TURBULENCE_DEPTH = 7
@@ -99,10 +105,13 @@ class ImageTexture:
                             is relative to the scene file
     ``filter``  bilinear    ``bilinear`` (between the four nearest texel
                             centres) or ``nearest`` (RTOW's lookup)
+    ``wrap``    clamp       past the edges: ``clamp`` (RTOW) or ``repeat``,
+                            for both axes, or ``[u, v]`` each its own (a
+                            globe: ``[repeat, clamp]``)
     ==========  ==========  ===================================================
 
     ``u`` runs left to right, ``v`` bottom to top (``v = 0`` is the bottom
-    row, as in RTOW); coordinates outside [0, 1] are clamped to the edge.
+    row, as in RTOW).
     Grey images are grey, an alpha channel is ignored.  At most
     ``MAX_TEXTURE_PIXELS`` pixels.  ``pixels`` may be given instead of a
     file from Python: linear RGB, shape ``(height, width, 3)``.
@@ -111,10 +120,12 @@ class ImageTexture:
     file: str | None = None
     filter: str = "bilinear"
     pixels: np.ndarray | None = field(default=None, compare=False, repr=False)
+    wrap: str | tuple[str, str] = "clamp"
     type: ClassVar[str] = "image"
 
     def __post_init__(self):
         object.__setattr__(self, "filter", string(self, self.filter, "filter", FILTERS))
+        object.__setattr__(self, "wrap", wrap_field(self, self.wrap))
         if self.pixels is None:
             if self.file is None:
                 fail(self, "file", "required key is missing")
@@ -126,7 +137,17 @@ class ImageTexture:
 
     def lookup(self, uv: np.ndarray) -> np.ndarray:
         """Linear RGB ``(3, N)`` at ``uv (2, N)``."""
-        return lookup(self.pixels, uv, self.filter)
+        return lookup(self.pixels, uv, self.filter, self.wrap)
+
+
+def wrap_field(obj, value) -> tuple[str, str]:
+    """``wrap`` as ``(u, v)``: one of :data:`WRAPS` for both axes, or a list of two."""
+    if isinstance(value, str):
+        value = string(obj, value, "wrap", WRAPS)
+        return value, value
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        fail(obj, "wrap", f"expected one of: {', '.join(WRAPS)}, or a list of two of them ([u, v]), got {describe(value)}")
+    return tuple(string(obj, w, join("wrap", i), WRAPS) for i, w in enumerate(value))
 
 
 @dataclass(frozen=True)
@@ -186,7 +207,7 @@ def texture_from_dict(obj, spec: Mapping, path: str):
         fail(obj, join(path, "type"), f"required key is missing (expected one of: {', '.join(TEXTURE_TYPES)})")
     kind = string(obj, spec["type"], join(path, "type"), tuple(TEXTURE_TYPES))
     cls = TEXTURE_TYPES[kind]
-    allowed = {"scale", "even", "odd"} if cls is Checker else {"file", "filter"} if cls is ImageTexture \
+    allowed = {"scale", "even", "odd"} if cls is Checker else {"file", "filter", "wrap"} if cls is ImageTexture \
         else {"scale", "seed"}
     for key in spec:
         if key != "type" and key not in allowed:
@@ -390,27 +411,39 @@ def srgb_decoding(levels: int) -> np.ndarray:
     return np.asarray(colour.cctf_decoding(np.arange(levels + 1) / levels, function="sRGB"), dtype=np.float32)
 
 
-def lookup(pixels: np.ndarray, uv: np.ndarray, filter: str) -> np.ndarray:
-    """Linear RGB ``(3, N)`` of ``pixels (H, W, 3)`` at ``uv (2, N)``, clamped to the edges.
+def lookup(pixels: np.ndarray, uv: np.ndarray, filter: str, wrap=("clamp", "clamp")) -> np.ndarray:
+    """Linear RGB ``(3, N)`` of ``pixels (H, W, 3)`` at ``uv (2, N)``.
 
     ``nearest`` is RTOW's ``image_texture::value``: ``i = int(u W)``,
     ``j = int((1 - v) H)``.  ``bilinear`` blends the four texel centres
-    around ``(u W - 1/2, (1 - v) H - 1/2)``."""
+    around ``(u W - 1/2, (1 - v) H - 1/2)``.  ``wrap (u, v)`` says per axis
+    what lies past the edges (:data:`WRAPS`): texel indices are clamped, or
+    taken modulo the size (after the floor, so a coordinate of any size
+    wraps exactly)."""
     height, width = pixels.shape[:2]
-    u = np.clip(np.asarray(uv[0], dtype=np.float64), 0.0, 1.0)
-    v = 1.0 - np.clip(np.asarray(uv[1], dtype=np.float64), 0.0, 1.0)  # flip: row 0 is the top
+    u = np.asarray(uv[0], dtype=np.float64)
+    v = 1.0 - np.asarray(uv[1], dtype=np.float64)  # flip: row 0 is the top
+    # clamped axes clamp the coordinate too (RTOW): u = 1 is the last texel, not one past it
+    if wrap[0] == "clamp":
+        u = np.clip(u, 0.0, 1.0)
+    if wrap[1] == "clamp":
+        v = np.clip(v, 0.0, 1.0)
+
+    def index(k, size, mode):
+        return np.clip(k, 0, size - 1) if mode == "clamp" else np.mod(k, size)
+
     if filter == "nearest":
-        i = np.minimum((u * width).astype(np.int64), width - 1)
-        j = np.minimum((v * height).astype(np.int64), height - 1)
+        i = index(np.floor(u * width).astype(np.int64), width, wrap[0])
+        j = index(np.floor(v * height).astype(np.int64), height, wrap[1])
         return pixels[j, i].T.astype(np.float64)
     x = u * width - 0.5
     y = v * height - 0.5
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = x - x0, y - y0
-    i0 = np.clip(x0.astype(np.int64), 0, width - 1)
-    i1 = np.clip(x0.astype(np.int64) + 1, 0, width - 1)
-    j0 = np.clip(y0.astype(np.int64), 0, height - 1)
-    j1 = np.clip(y0.astype(np.int64) + 1, 0, height - 1)
+    i0 = index(x0.astype(np.int64), width, wrap[0])
+    i1 = index(x0.astype(np.int64) + 1, width, wrap[0])
+    j0 = index(y0.astype(np.int64), height, wrap[1])
+    j1 = index(y0.astype(np.int64) + 1, height, wrap[1])
     flat = pixels.reshape(-1, 3)
     top = flat[j0 * width + i0].T * (1.0 - fx) + flat[j0 * width + i1].T * fx
     bottom = flat[j1 * width + i0].T * (1.0 - fx) + flat[j1 * width + i1].T * fx
