@@ -280,6 +280,12 @@ def test_bad_textures_name_the_path(spec, path, problem):
     assert e.value.path == path and problem in e.value.problem, str(e.value)
 
 
+def test_file_and_pixels_together_are_refused(tmp_path):
+    with pytest.raises(SceneError) as e:
+        ImageTexture(write_png(tmp_path / "tiny.png", TINY), pixels=np.zeros((1, 1, 3), np.float32))
+    assert e.value.path == "file" and "not both" in e.value.problem
+
+
 def test_huge_pixels_array_is_refused():
     with pytest.raises(SceneError, match="limit"):
         ImageTexture(pixels=np.broadcast_to(np.zeros((1, 1, 3), np.float32), (4097, 4097, 3)))

@@ -133,6 +133,8 @@ class ImageTexture:
             object.__setattr__(self, "file", string(self, file, "file"))
             object.__setattr__(self, "pixels", read_image(self, self.file))
         else:
+            if self.file is not None:  # which picture would be meant is anyone's guess
+                fail(self, "file", "give file or pixels, not both")
             object.__setattr__(self, "pixels", image_pixels(self, self.pixels))
 
     def lookup(self, uv: np.ndarray) -> np.ndarray:
