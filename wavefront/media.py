@@ -116,19 +116,12 @@ def closed_outward(obj, mesh: Mesh) -> Mesh:
                                         "boundary must enclose a volume")
     if not shape.is_winding_consistent:
         fail(obj, "boundary.mesh.file", f"{where}its faces are not wound consistently, so it has no inside")
-    # wound inwards in world space: in the file, or outwards in the file under a mirroring transform
-    if (shape.volume < 0) != mirrors(mesh.transform):
+    # wound inwards in the file (a mirroring transform keeps the sides: mesh_triangles turns its faces back)
+    if shape.volume < 0:
         return Mesh(vertices=mesh.vertices, faces=np.ascontiguousarray(mesh.faces[:, ::-1]), material=mesh.material,
                     smooth=mesh.smooth, transform=mesh.transform, vertex_normals=mesh.vertex_normals, uv=mesh.uv,
                     file=mesh.file, dropped=mesh.dropped)
     return mesh
-
-
-def mirrors(transform) -> bool:
-    """Whether ``transform`` reflects (a negative determinant): it turns every
-    face's winding, so a boundary outward in object space is inward in world
-    space, and entering would cross back faces (the fog would vanish)."""
-    return transform is not None and float(np.linalg.det(transform.array[:3, :3])) < 0.0
 
 
 def volume_albedo(obj, value, path: str):

@@ -174,40 +174,44 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         _check_ply_header(data[:65536], max_faces)
     elif ext == "obj" and data.count(b"\nf ") > max_faces:  # a face a line: counted before trimesh builds them
         raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
+    elif ext in ("glb", "gltf"):  # instances multiply a small file's triangles: counted before trimesh builds them
+        declared = _gltf_triangles(data, ext)
+        if declared > max_faces:
+            raise MeshError(f"declares {declared} triangles (meshes and their instances); the limit is {max_faces}")
+    data = _text_as_utf8(data, ext)
     try:
-        mesh = trimesh.load(io.BytesIO(data), file_type=ext, force="mesh", process=False)
-        vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
-        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+        # load_scene and baking each instance here, not trimesh.load(force="mesh"): that
+        # concatenation drops the normals a file stores (smooth: true must use them)
+        # trimesh's arithmetic on hostile numbers (normals of 1e300 coordinates) only warns:
+        # what it returns is checked below, so its warnings would be noise beside that one message
+        with np.errstate(all="ignore"):
+            scene = trimesh.load_scene(io.BytesIO(data), file_type=ext, process=False)
+            del data
+            vertices, faces, normals, uv = _baked(scene, max_faces)
+    except MeshError:
+        raise
     except MemoryError:
         raise MeshError("too large to load") from None
     except Exception as e:  # trimesh reports malformed files with many exception types
         text = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise MeshError(f"cannot be read as {ext.upper()}: {text[:200]}") from None
-    del data
     if faces.shape[0] == 0:
         raise MeshError("has no triangles")
-    if faces.shape[0] > max_faces:
-        raise MeshError(f"has {faces.shape[0]} triangles; the limit is {max_faces}")
     if not np.isfinite(vertices).all():
         raise MeshError("has NaN or infinite vertex coordinates")
+    if vertices.size and not np.abs(vertices).max() <= MAX_COORDINATE:
+        raise MeshError(f"has vertex coordinates beyond ±{MAX_COORDINATE:g}")
     if faces.min() < 0 or faces.max() >= vertices.shape[0]:
         raise MeshError(f"has face indices out of range (it has {vertices.shape[0]} vertices)")
-    normals = uv = None
-    try:
-        normals = np.asarray(mesh.vertex_normals, dtype=np.float64).reshape(-1, 3)
-        visual_uv = getattr(mesh.visual, "uv", None)
-        if visual_uv is not None and len(visual_uv) == len(vertices):
-            uv = np.asarray(visual_uv, dtype=np.float64).reshape(-1, 2)
-    except Exception:  # optional attributes; a mesh without them is still a mesh
-        pass
     if normals is not None and not np.isfinite(normals).all():
         normals = None
     if uv is not None and not np.isfinite(uv).all():
         uv = None
     v = vertices.T
-    area2 = np.linalg.norm(np.cross(v[:, faces[:, 1]] - v[:, faces[:, 0]], v[:, faces[:, 2]] - v[:, faces[:, 0]],
-                                    axis=0), axis=0)
-    keep = area2 > 0
+    with np.errstate(over="ignore", invalid="ignore"):  # an edge's square may overflow: its face is kept
+        area2 = np.linalg.norm(np.cross(v[:, faces[:, 1]] - v[:, faces[:, 0]], v[:, faces[:, 2]] - v[:, faces[:, 0]],
+                                        axis=0), axis=0)
+    keep = ~(area2 == 0)  # NaN: overflowed, so not degenerate
     dropped = int(faces.shape[0] - keep.sum())
     if dropped == faces.shape[0]:
         raise MeshError("has only degenerate (zero-area) triangles")
@@ -215,14 +219,117 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
                 dropped=dropped)
 
 
+def _baked(scene, max_faces: int):
+    """``vertices, faces, vertex_normals, uv`` of every mesh instance of a
+    trimesh scene, each moved by its node's transform (trimesh's
+    ``apply_transform``: normals by the inverse transpose, and faces turned
+    over under a mirroring transform, as glTF prescribes); ``uv`` only when
+    every instance has one per vertex.  Raises MeshError past ``max_faces``."""
+    import trimesh
+
+    nodes = [(node, *scene.graph[node]) for node in scene.graph.nodes_geometry]
+    nodes = [(transform, scene.geometry[name]) for _, transform, name in nodes
+             if isinstance(scene.geometry.get(name), trimesh.Trimesh)]
+    total = sum(len(geometry.faces) for _, geometry in nodes)
+    if total > max_faces:
+        raise MeshError(f"has {total} triangles; the limit is {max_faces}")
+    vertices, faces, normals, uvs, offset = [], [], [], [], 0
+    for transform, geometry in nodes:
+        # the cache holds the normals the file gave; a plain copy would drop them
+        piece = geometry.copy(include_cache=True)
+        piece.apply_transform(transform)
+        vertices.append(np.asarray(piece.vertices, dtype=np.float64).reshape(-1, 3))
+        faces.append(np.asarray(piece.faces, dtype=np.int64).reshape(-1, 3) + offset)
+        offset += vertices[-1].shape[0]
+        try:  # optional attributes; a mesh without them is still a mesh
+            normals.append(np.asarray(piece.vertex_normals, dtype=np.float64).reshape(-1, 3))
+        except Exception:
+            normals.append(None)
+        uv = getattr(piece.visual, "uv", None)
+        uvs.append(np.asarray(uv, dtype=np.float64).reshape(-1, 2) if uv is not None and len(uv) == len(vertices[-1])
+                   else None)
+    if not nodes:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), None, None
+    join = lambda parts: np.concatenate(parts) if all(p is not None for p in parts) else None  # noqa: E731
+    return np.concatenate(vertices), np.concatenate(faces), join(normals), join(uvs)
+
+
+def _gltf_triangles(data: bytes, ext: str) -> int:
+    """About the triangles a glTF/GLB file makes trimesh build: each mesh's
+    (from its accessors' counts) once per node that instances it, and once if
+    none does (a mesh used by many nodes makes a small file declare billions).
+    0 when the JSON cannot be read (trimesh then reports the file)."""
+    import json
+
+    try:
+        if ext == "glb":
+            length = int.from_bytes(data[12:16], "little")
+            if data[16:20] != b"JSON":
+                return 0
+            doc = json.loads(data[20:20 + length])
+        else:
+            doc = json.loads(data)
+        accessors = doc.get("accessors", [])
+
+        def triangles(mesh) -> int:
+            n = 0
+            for primitive in mesh.get("primitives", []):
+                index = primitive.get("indices", primitive.get("attributes", {}).get("POSITION"))
+                if isinstance(index, int) and 0 <= index < len(accessors):
+                    count = accessors[index].get("count", 0)
+                    count = count if isinstance(count, int) and count > 0 else 0
+                    n += count // 3 if primitive.get("mode", 4) == 4 else count  # strips, fans: one a vertex
+            return n
+
+        per_mesh = [triangles(m) for m in doc.get("meshes", [])]
+        uses = [0] * len(per_mesh)
+        for node in doc.get("nodes", []):
+            if isinstance(node.get("mesh"), int) and 0 <= node["mesh"] < len(per_mesh):
+                uses[node["mesh"]] += 1
+        return sum(n * max(1, k) for n, k in zip(per_mesh, uses))
+    except (ValueError, TypeError, AttributeError, KeyError, IndexError, RecursionError):
+        return 0
+
+
+def _text_as_utf8(data: bytes, ext: str) -> bytes:
+    """A text mesh file's bytes as UTF-8.  trimesh decodes text as UTF-8 and
+    otherwise needs charset-normalizer (not installed) to guess, so an OBJ with
+    one Latin-1 byte in a comment ("Créé par ...") was refused.  Only comments
+    and names can hold such bytes; read as Latin-1 (which maps every byte) the
+    numbers are unchanged.  Binary data is left alone: a binary STL (its
+    triangle count matches its size), a PLY's body (only its header is text)."""
+    def utf8(text: bytes) -> bytes:
+        try:
+            text.decode("utf-8")
+            return text
+        except UnicodeDecodeError:
+            return text.decode("latin-1").encode("utf-8")
+
+    if ext in ("obj", "off"):
+        return utf8(data)
+    if ext == "stl":
+        binary = len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data)
+        return data if binary else utf8(data)
+    if ext == "ply":
+        end = data.find(b"end_header")
+        if end >= 0:
+            end = data.find(b"\n", end) + 1 or len(data)
+            return utf8(data[:end]) + data[end:]
+    return data
+
+
 def mesh_triangles(mesh: Mesh) -> dict:
     """World-space triangle arrays of ``mesh``: ``v0, v1, v2 (3, F)`` and, when
     smooth, ``vertex_normal (3, 3, F)``; ``vertex_uv (3, 2, F)`` if the file has uv."""
     t = mesh.transform
     vertices = mesh.vertices.T
+    f = mesh.faces.T
     if t is not None:
         vertices = t.points(vertices)  # once per vertex, at compile time
-    f = mesh.faces.T
+        if np.linalg.det(t.array[:3, :3]) < 0:
+            # a mirror turns every winding over: without turning it back, each face's front
+            # (the side it emits from, and the side its file normals are on) would swap sides
+            f = f[[0, 2, 1]]
     out = dict(v0=vertices[:, f[0]], v1=vertices[:, f[1]], v2=vertices[:, f[2]], vertex_normal=None, vertex_uv=None)
     if mesh.smooth and mesh.vertex_normals is not None:
         n = mesh.vertex_normals.T

@@ -55,9 +55,15 @@ class Triangle:
             check_world_flat(self, np.stack((w[0], w[1] - w[0], w[2] - w[0])), "triangle")
 
     def world(self) -> np.ndarray:
-        """The vertices in world space, shape (3 vertices, 3 coordinates)."""
+        """The vertices in world space, shape (3 vertices, 3 coordinates); a
+        mirroring transform swaps ``v1`` and ``v2``, so that the front side
+        stays the mirror image of the object's front side (pbrt's
+        ``transformSwapsHandedness``), as a mirrored box's faces stay outward."""
         v = np.asarray(self.vertices, dtype=np.float64)
-        return v if self.transform is None else self.transform.points(v.T).T
+        if self.transform is None:
+            return v
+        w = self.transform.points(v.T).T
+        return w[[0, 2, 1]] if np.linalg.det(self.transform.array[:3, :3]) < 0 else w
 
 
 def twice_area(v0, v1, v2) -> np.ndarray:
