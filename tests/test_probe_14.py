@@ -195,3 +195,28 @@ def test_a_mirrored_quad_keeps_its_front_side():
     front = seen(lamp_scene(quads=[Quad(**quad)]))
     assert front == 1.0
     assert seen(lamp_scene(quads=[Quad(**quad, transform=MIRROR)])) == front
+
+
+# -- the command line -----------------------------------------------------------------
+
+@pytest.mark.parametrize("how", ["same name", "symlink", "in a checker"])
+def test_the_output_may_not_replace_a_texture_the_scene_reads(tmp_path, how):
+    """``-o earthmap.png`` beside a scene textured with ``earthmap.png``
+    rendered and replaced the texture with the render: outputs were checked
+    against the scene file and ``--resume`` only."""
+    from PIL import Image
+
+    Image.fromarray(np.full((4, 4, 3), 200, np.uint8)).save(tmp_path / "tex.png")
+    before = (tmp_path / "tex.png").read_bytes()
+    image = "{type: image, file: tex.png}"
+    albedo = f"{{type: checker, even: {image}, odd: [1, 1, 1]}}" if how == "in a checker" else image
+    scene = write_scene(tmp_path, f"materials: {{w: {{type: lambertian, albedo: {albedo}}}}}\n"
+                                  "spheres: [{center: [0, 0, -2], radius: 1, material: w}]\n")
+    out = tmp_path / "tex.png"
+    if how == "symlink":
+        out = tmp_path / "link.png"
+        out.symlink_to("tex.png")
+    r = run("render", scene, "-o", out, "--width", 4, "--height", 4, "--spp", 1)
+    assert r.returncode == 2, r.stderr
+    assert (tmp_path / "tex.png").read_bytes() == before
+    assert len(r.stderr.splitlines()) == 1 and "materials.w.albedo" in r.stderr and "tex.png" in r.stderr

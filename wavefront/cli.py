@@ -299,6 +299,44 @@ def check_paths(args) -> list[str]:
     return outputs
 
 
+def scene_inputs(scene) -> dict[str, str]:
+    """Every file the scene reads besides itself, by YAML path: image
+    textures (nested in checkers too) and mesh files, media boundaries' included."""
+    import dataclasses
+
+    from .textures import Checker, ImageTexture
+
+    files = {}
+
+    def texture(value, path):
+        if isinstance(value, ImageTexture) and value.file is not None:
+            files[f"{path}.file"] = value.file
+        elif isinstance(value, Checker):
+            texture(value.even, f"{path}.even")
+            texture(value.odd, f"{path}.odd")
+
+    for name, material in scene.materials.items():
+        for f in dataclasses.fields(material):
+            texture(getattr(material, f.name), f"materials.{name}.{f.name}")
+    files.update({f"meshes[{i}].file": m.file for i, m in enumerate(scene.meshes) if m.file})
+    files.update({f"media[{i}].boundary.mesh.file": m.boundary.file for i, m in enumerate(scene.media)
+                  if getattr(m.boundary, "file", "")})
+    return files
+
+
+def check_not_reading(scene, writes: list[str]) -> None:
+    """Refuse an output that names a file the scene reads (``-o earthmap.png``
+    beside a scene textured with it would replace the texture).  Raises
+    ``OutputError``; checked once the scene is loaded, before rendering."""
+    from .output import OutputError, file_key
+
+    reads = {file_key(file): (path, file) for path, file in scene_inputs(scene).items()}
+    for out in writes:
+        if file_key(out) in reads:
+            path, file = reads[file_key(out)]
+            raise OutputError(f"{out}: would overwrite {file}, which the scene reads ({path})")
+
+
 def _render(args, signals: _Signals, started: float) -> int:
     from .film import CheckpointError
     from .output import OutputError, encode_bytes
@@ -312,6 +350,7 @@ def _render(args, signals: _Signals, started: float) -> int:
         _refuse_unless_loading_fits(args.scene, memory)
         scene = load_scene(args.scene, memory=memory)
         scene = _with_flags(scene, args)
+        check_not_reading(scene, outputs + ([args.checkpoint] if args.checkpoint is not None else []))
     except (SceneError, OutputError) as e:
         print(f"wavefront: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
