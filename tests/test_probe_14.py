@@ -133,7 +133,7 @@ def test_a_gltf_of_many_instances_is_refused_from_its_json(tmp_path):
     """A 1.5 MB GLB placing one mesh 300 times made trimesh build 24 M
     triangles (4.2 GB resident) before the face limit refused them: the
     count is now read from the file's JSON before trimesh builds anything."""
-    path = gltf_with_nodes(tmp_path / "many.glb", 40)
+    path = glb_instancing(tmp_path / "many.glb", 40)
     with pytest.raises(MeshError, match="declares 12800 triangles"):
         read_mesh(str(path), max_faces=10_000)
     assert read_mesh(str(path), max_faces=12_800)["faces"].shape == (12_800, 3)
@@ -157,6 +157,42 @@ def test_a_glb_of_several_nodes_is_baked_with_their_transforms(tmp_path):
         assert (outward > 0).all()
     np.testing.assert_allclose(sorted(c[0] for c in centres), (0, 3, 6), atol=1e-9)
     np.testing.assert_allclose(np.array(centres)[:, 1:], [(0, -10)] * 3, atol=1e-9)
+
+
+def glb_instancing(path, copies: int, subdivisions: int = 2):
+    """A GLB holding one icosphere once and ``copies`` nodes that place it (true
+    instancing: the file stays small whatever ``copies`` is)."""
+    import json
+
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.creation.icosphere(subdivisions=subdivisions), node_name="n0")
+    data = scene.export(file_type="glb")
+    length = struct.unpack("<I", data[12:16])[0]
+    doc, binary = json.loads(data[20:20 + length]), data[20 + length:]
+    mesh = next(node["mesh"] for node in doc["nodes"] if "mesh" in node)
+    doc["nodes"] = [{"mesh": mesh, "translation": [3 * k, 0, -10]} for k in range(copies)]
+    doc["scenes"] = [{"nodes": list(range(copies))}]
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<I", len(text)) + b"JSON" + text + binary
+    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
+    return path
+
+
+def test_a_small_glb_instancing_a_mesh_is_refused_within_the_memory_budget(tmp_path):
+    """A 0.4 MB GLB placing one mesh 380 times (7.8 M triangles, under the
+    face limit) grew the command to 3.1 GB under ``--memory 1G`` before the
+    compile step refused it: the budget check before loading counted only the
+    file's bytes.  Here 3,200 instances of 320 triangles (1 M triangles,
+    about 500 MiB to load) against 300 MiB more than the process holds."""
+    from wavefront import MemoryBudgetError, load_scene
+    from wavefront.memory import current_rss
+
+    glb_instancing(tmp_path / "many.glb", 3_200)
+    assert (tmp_path / "many.glb").stat().st_size < 200_000
+    scene = write_scene(tmp_path, "materials: {w: {type: lambertian}}\nmeshes: [{file: many.glb, material: w}]\n")
+    with pytest.raises(MemoryBudgetError, match=r"meshes\[0\]\.file: loading .*many\.glb"):
+        load_scene(scene, memory=current_rss() + 300 * 2**20)
 
 
 # -- mirrors --------------------------------------------------------------------------

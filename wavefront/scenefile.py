@@ -718,6 +718,9 @@ _MESH_KEYS = {"file", "material", "smooth", "transform"}
 # trimesh's peak while loading, per byte of file: ~27 measured for a 19 MB
 # binary PLY of 1M triangles (text formats hold fewer triangles per byte)
 MESH_LOAD_BYTES_PER_FILE_BYTE = 32
+# ... and per triangle a glTF's nodes instance (a 0.4 MB GLB placing one mesh
+# 380 times is 7.8 M triangles): ~400 measured while trimesh builds and bakes them
+MESH_LOAD_BYTES_PER_TRIANGLE = 512
 
 
 def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> list[Mesh]:
@@ -746,7 +749,8 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
         file = os.path.join(base, name)
         if memory is not None:
             with contextlib.suppress(OSError):  # a missing file is read_mesh's to report
-                refuse_unless_fits(memory, MESH_LOAD_BYTES_PER_FILE_BYTE * os.stat(file).st_size,
+                refuse_unless_fits(memory, max(MESH_LOAD_BYTES_PER_FILE_BYTE * os.stat(file).st_size,
+                                               MESH_LOAD_BYTES_PER_TRIANGLE * mesh_files.declared_triangles(file)),
                                    f"{source}: {path}.file: loading {file}")
         try:
             data = read_mesh(file, max_faces=mesh_files.MAX_MESH_FACES - total)

@@ -254,6 +254,25 @@ def _baked(scene, max_faces: int):
     return np.concatenate(vertices), np.concatenate(faces), join(normals), join(uvs)
 
 
+def declared_triangles(path: str) -> int:
+    """The triangles a glTF/GLB file declares (:func:`_gltf_triangles`), read
+    from its JSON alone, so that a small file instancing a mesh many times can
+    be refused within a memory budget before trimesh builds them; 0 for other
+    formats (their size bounds what they hold) and for what cannot be read."""
+    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    if ext not in ("glb", "gltf"):
+        return 0
+    try:
+        with open(path, "rb") as f:
+            if ext == "gltf":
+                return _gltf_triangles(f.read(MAX_MESH_BYTES + 1), ext)
+            head = f.read(20)
+            length = int.from_bytes(head[12:16], "little")
+            return _gltf_triangles(head + f.read(min(length, MAX_MESH_BYTES)), ext)
+    except OSError:
+        return 0
+
+
 def _gltf_triangles(data: bytes, ext: str) -> int:
     """About the triangles a glTF/GLB file makes trimesh build: each mesh's
     (from its accessors' counts) once per node that instances it, and once if
