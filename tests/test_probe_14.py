@@ -116,6 +116,37 @@ def test_smooth_shading_uses_the_normals_the_file_gives(tmp_path, kind):
     np.testing.assert_allclose(turned["vertex_normal"][0, :, 0], (0, -0.8, 0.6), atol=1e-6)
 
 
+def floor_lit_from_above(tmp_path, file_normal, smooth: bool):
+    """A grey floor mesh (its winding faces up) under a small quad lamp facing
+    down, its file normals all ``file_normal``; mean of the image."""
+    corners = [(-2, -1, -2), (2, -1, -2), (2, -1, 2), (-2, -1, 2)]
+    path = tmp_path / "floor.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                    "property float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face 2\n"
+                    "property list uchar int vertex_indices\nend_header\n"
+                    + "".join(f"{x} {y} {z} {file_normal[0]} {file_normal[1]} {file_normal[2]}\n"
+                              for x, y, z in corners) + "3 0 2 1\n3 0 3 2\n")
+    scene = Scene(materials={"g": Lambertian((0.5, 0.5, 0.5)), "lamp": Emissive((1, 1, 1))},
+                  background=Solid((0, 0, 0)), width=16, height=16,
+                  camera=Camera(look_from=(0, 2, 4), look_at=(0, -1, 0), vfov=40),
+                  quads=[Quad((-0.5, 1, -0.5), (1, 0, 0), (0, 0, 1), "lamp")],
+                  meshes=[Mesh.read(path, "g", smooth=smooth)],
+                  render=RenderSettings(samples_per_pixel=16, max_depth=20))
+    return seen(scene)
+
+
+def test_file_normals_against_the_winding_still_shade_the_lit_side(tmp_path):
+    """A smooth mesh whose file normals point against its winding (common in
+    exported models): the shading normal, turned to face the ray by the
+    geometric normal's side, pointed into the floor, so the lit floor came
+    out black (0.0).  Turned into the face's hemisphere (pbrt keeps the two
+    together), it shades exactly as the flat floor and as normals along the winding."""
+    flat = floor_lit_from_above(tmp_path, (0, 1, 0), smooth=False)
+    assert flat > 0.005
+    assert floor_lit_from_above(tmp_path, (0, 1, 0), smooth=True) == flat
+    assert floor_lit_from_above(tmp_path, (0, -1, 0), smooth=True) == flat
+
+
 def gltf_with_nodes(path, copies: int, mirror_second: bool = False):
     """A GLB of one small mesh placed by ``copies`` nodes."""
     scene = trimesh.Scene()

@@ -164,6 +164,13 @@ class TriangleSet(ShapeKind):
         if self.vertex_normal is not None:
             vn = np.take(self.vertex_normal, idx, axis=-1)
             shading = normalize(b0 * vn[0] + b1 * vn[1] + b2 * vn[2])
+            # A file's normals opposite its winding (or vertices disagreeing) would shade the
+            # surface's other side, black under a lamp: turned into the face's hemisphere, as
+            # pbrt keeps the two normals together; none left (they cancel), the face's own.
+            cos = shading[0] * outward[0] + shading[1] * outward[1] + shading[2] * outward[2]
+            turn = np.flatnonzero(~(cos > 0))
+            if turn.size:
+                shading[:, turn] = np.where(cos[turn] < 0, -shading[:, turn], outward[:, turn])
         coords = None
         if uv:
             if self.vertex_uv is None:
