@@ -54,6 +54,27 @@ def test_mesh_coordinates_beyond_range_give_one_line_naming_the_mesh_file(tmp_pa
     assert "meshes[0].file" in r.stderr and "big.obj" in r.stderr and "beyond" in r.stderr
 
 
+PLY_TRIANGLE = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                "element face 1\nproperty list uchar int vertex_indices\nend_header\n{}\n3 {}\n")
+
+
+@pytest.mark.parametrize("name, text, problem", [
+    ("neg.ply", PLY_TRIANGLE.format("0 0 -1\n1 0 -1\n0 1 -1", "0 1 -1"), "out of range"),
+    ("far.ply", PLY_TRIANGLE.format("0 0 -1\n1 0 -1\n0 1 -1", "0 1 7"), "out of range"),
+    ("nan.ply", PLY_TRIANGLE.format("nan 0 -1\n1 0 -1\n0 1 -1", "0 1 2"), "NaN"),
+])
+def test_a_bad_mesh_file_gives_one_line(tmp_path, name, text, problem):
+    """Checked before trimesh computes normals from the file (a negative
+    index made it log 16 lines of its own)."""
+    (tmp_path / name).write_text(text)
+    scene = write_scene(tmp_path, f"materials: {{w: {{type: lambertian}}}}\nmeshes: [{{file: {name}, material: w}}]\n")
+    out = tmp_path / "out.png"
+    r = run("render", scene, "-o", out, "--width", 4, "--height", 4, "--spp", 1)
+    assert r.returncode == 2 and not out.exists()
+    assert len(r.stderr.splitlines()) == 1, r.stderr
+    assert "meshes[0].file" in r.stderr and name in r.stderr and problem in r.stderr
+
+
 LATIN1_FILES = {
     "a.obj": b"# Cr\xe9\xe9 par un vieil exporteur\nv 0 0 -1\nv 1 0 -1\nv 0 1 -1\nf 1 2 3\n",
     "a.off": b"OFF\n# caf\xe9\n3 1 0\n0 0 -1\n1 0 -1\n0 1 -1\n3 0 1 2\n",

@@ -239,8 +239,14 @@ def _baked(scene, max_faces: int):
         piece = geometry.copy(include_cache=True)
         piece.apply_transform(transform)
         vertices.append(np.asarray(piece.vertices, dtype=np.float64).reshape(-1, 3))
-        faces.append(np.asarray(piece.faces, dtype=np.int64).reshape(-1, 3) + offset)
+        faces.append(np.asarray(piece.faces, dtype=np.int64).reshape(-1, 3))
+        if faces[-1].size and (faces[-1].min() < 0 or faces[-1].max() >= vertices[-1].shape[0]):
+            # before trimesh computes normals from them (it logs its own complaints)
+            raise MeshError(f"has face indices out of range (it has {vertices[-1].shape[0]} vertices)")
+        faces[-1] += offset
         offset += vertices[-1].shape[0]
+        if not np.isfinite(vertices[-1]).all():
+            raise MeshError("has NaN or infinite vertex coordinates")
         try:  # optional attributes; a mesh without them is still a mesh
             normals.append(np.asarray(piece.vertex_normals, dtype=np.float64).reshape(-1, 3))
         except Exception:
