@@ -75,6 +75,23 @@ def test_a_bad_mesh_file_gives_one_line(tmp_path, name, text, problem):
     assert "meshes[0].file" in r.stderr and name in r.stderr and problem in r.stderr
 
 
+def test_a_sliver_a_rotation_rounds_flat_is_dropped_not_the_whole_mesh(tmp_path):
+    """A mesh holding one sliver (area 1e-17 of its size, as scans and CAD
+    exports do) was refused whole under an ordinary 30-degree rotation, the
+    message blaming the transform ("beyond floating-point range"): the
+    rotated sliver rounds to a line.  It is dropped and counted, like the
+    file's own degenerate faces."""
+    (tmp_path / "sliver.obj").write_text("v 0 0 -2\nv 1 0 -2\nv 0.5 1e-17 -2\nv 0 1 -2\nf 1 2 3\nf 1 2 4\n")
+    scene = write_scene(tmp_path, "materials: {w: {type: lambertian}}\nmeshes: [{file: sliver.obj, material: w, "
+                                  "transform: [{rotate: {axis: [0, 0, 1], angle: 30}}]}]\n")
+    out = tmp_path / "out.png"
+    r = run("render", scene, "-o", out, "--width", 4, "--height", 4, "--spp", 1)
+    assert r.returncode == 0, r.stderr
+    assert "dropped 1 degenerate" in r.stderr
+    mesh = Mesh.read(tmp_path / "sliver.obj", "w", transform=Transform.rotate((0, 0, 1), 30))
+    assert len(mesh) == 1 and mesh.dropped == 1
+
+
 LATIN1_FILES = {
     "a.obj": b"# Cr\xe9\xe9 par un vieil exporteur\nv 0 0 -1\nv 1 0 -1\nv 0 1 -1\nf 1 2 3\n",
     "a.off": b"OFF\n# caf\xe9\n3 1 0\n0 0 -1\n1 0 -1\n0 1 -1\n3 0 1 2\n",

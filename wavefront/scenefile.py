@@ -757,12 +757,12 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
         except MeshError as e:
             raise SceneError(source, f"{path}.file", f"{file}: {e}") from None
         total += data["faces"].shape[0]
-        if data["dropped"]:
-            warnings.warn(SceneWarning(f"{source}: {path}.file: {file}: dropped {data['dropped']} degenerate "
-                                       "(zero-area) triangles"), stacklevel=3)
         fields = {k: v for k, v in spec.items() if k != "file"}
         mesh = _build(source, path, Mesh, fields, vertices=data["vertices"], faces=data["faces"],
                       vertex_normals=data["vertex_normals"], uv=data["uv"], file=file, dropped=data["dropped"])
+        if mesh.dropped:  # the file's, and slivers its transform rounds flat
+            warnings.warn(SceneWarning(f"{source}: {path}.file: {file}: dropped {mesh.dropped} degenerate "
+                                       "(zero-area) triangles"), stacklevel=3)
         _check_reference(source, path, mesh.material, defined)
         meshes.append(mesh)
     return meshes

@@ -82,9 +82,16 @@ class Mesh:
             v, f = self.transform.points(vertices.T), faces.T
             with np.errstate(over="ignore", invalid="ignore"):
                 area2 = np.linalg.norm(np.cross(v[:, f[1]] - v[:, f[0]], v[:, f[2]] - v[:, f[0]], axis=0), axis=0)
-            if not np.abs(v).max() <= MAX_COORDINATE or not (np.isfinite(area2) & (area2 > 0)).all():
+            flat = area2 == 0
+            if not np.abs(v).max() <= MAX_COORDINATE or not np.isfinite(area2).all() or flat.all():
                 fail(self, "transform", "the transform takes triangles beyond floating-point range "
                                         "(non-finite, or flattened to zero area)")
+            if flat.any():
+                # a sliver the file holds (area 1e-17 of its size) may round to a line once
+                # turned: dropped and counted like the file's own degenerate faces, not the
+                # whole mesh refused
+                set_field(self, "faces", np.ascontiguousarray(faces[~flat]))
+                set_field(self, "dropped", self.dropped + int(flat.sum()))
 
     def __len__(self) -> int:
         return self.faces.shape[0]
