@@ -264,6 +264,55 @@ def test_a_small_glb_instancing_a_mesh_is_refused_within_the_memory_budget(tmp_p
         load_scene(scene, memory=current_rss() + 300 * 2**20)
 
 
+def test_a_gltf_with_its_buffers_in_bin_files_is_read(tmp_path):
+    """The usual .gltf layout (JSON beside .bin buffers): trimesh was given
+    the file's bytes without a way to find the .bin, so every such file was
+    refused ("'NoneType' object is not subscriptable")."""
+    ball = trimesh.creation.icosphere(subdivisions=1)
+    ball.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(ball.vertices), 2)))
+    for name, data in trimesh.Scene(ball).export(file_type="gltf").items():
+        (tmp_path / name).write_bytes(data)
+    assert any(p.suffix == ".bin" for p in tmp_path.iterdir())
+    data = read_mesh(str(tmp_path / "model.gltf"))
+    assert data["faces"].shape == (80, 3)
+    np.testing.assert_allclose(np.sort(data["uv"], axis=0), np.sort(ball.visual.uv, axis=0), atol=1e-6)  # float32
+
+
+@pytest.mark.parametrize("uri, problem", [("../secret.bin", "outside its directory"),
+                                          ("/etc/hostname", "outside its directory"),
+                                          ("fifo.bin", "not a regular file"),
+                                          ("gone.bin", "cannot be read")])
+def test_a_gltf_buffer_outside_its_directory_or_not_a_file_is_refused(tmp_path, uri, problem):
+    """What the glTF names is read only from regular files in its directory
+    (trimesh's own rule for its file resolver), never a FIFO (it would block)."""
+    import json
+    import os
+
+    (tmp_path / "secret.bin").write_bytes(b"\0" * 36)
+    here = tmp_path / "models"
+    here.mkdir()
+    os.mkfifo(here / "fifo.bin")
+    doc = {"asset": {"version": "2.0"}, "buffers": [{"uri": uri, "byteLength": 36}],
+           "bufferViews": [{"buffer": 0, "byteLength": 36}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3"}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
+           "scenes": [{"nodes": [0]}], "scene": 0}
+    (here / "m.gltf").write_text(json.dumps(doc))
+    with pytest.raises(MeshError, match=problem):
+        read_mesh(str(here / "m.gltf"))
+
+
+def test_a_fifo_named_like_a_gltf_is_refused_at_once(tmp_path):
+    """The budget check reads a glTF's JSON before loading: it must not open
+    a FIFO (it would wait for a writer for ever)."""
+    import os
+
+    os.mkfifo(tmp_path / "pipe.gltf")
+    scene = write_scene(tmp_path, "materials: {w: {type: lambertian}}\nmeshes: [{file: pipe.gltf, material: w}]\n")
+    r = run("render", scene, "-o", tmp_path / "out.png", "--width", 4, "--height", 4, "--spp", 1)
+    assert r.returncode == 2 and "not a regular file" in r.stderr and len(r.stderr.splitlines()) == 1
+
+
 # -- mirrors --------------------------------------------------------------------------
 
 def test_a_mirrored_triangle_or_mesh_keeps_its_front_side():

@@ -181,10 +181,13 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         _check_ply_header(data[:65536], max_faces)
     elif ext == "obj" and data.count(b"\nf ") > max_faces:  # a face a line: counted before trimesh builds them
         raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
-    elif ext in ("glb", "gltf"):  # instances multiply a small file's triangles: counted before trimesh builds them
-        declared = _gltf_triangles(data, ext)
+    options = {}
+    if ext in ("glb", "gltf"):  # instances multiply a small file's triangles: counted before trimesh builds them
+        doc = _gltf_document(data, ext)
+        declared = _gltf_triangles(doc)
         if declared > max_faces:
             raise MeshError(f"declares {declared} triangles (meshes and their instances); the limit is {max_faces}")
+        options["resolver"] = _gltf_files(doc, os.path.dirname(path), max_bytes - len(data))
     data = _text_as_utf8(data, ext)
     try:
         # load_scene and baking each instance here, not trimesh.load(force="mesh"): that
@@ -192,7 +195,7 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         # trimesh's arithmetic on hostile numbers (normals of 1e300 coordinates) only warns:
         # what it returns is checked below, so its warnings would be noise beside that one message
         with np.errstate(all="ignore"):
-            scene = trimesh.load_scene(io.BytesIO(data), file_type=ext, process=False)
+            scene = trimesh.load_scene(io.BytesIO(data), file_type=ext, process=False, **options)
             del data
             vertices, faces, normals, uv = _baked(scene, max_faces)
     except MeshError:
@@ -276,31 +279,41 @@ def declared_triangles(path: str) -> int:
     if ext not in ("glb", "gltf"):
         return 0
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, /dev/zero stream: read_mesh refuses them
+            return 0
         with open(path, "rb") as f:
             if ext == "gltf":
-                return _gltf_triangles(f.read(MAX_MESH_BYTES + 1), ext)
+                return _gltf_triangles(_gltf_document(f.read(MAX_MESH_BYTES + 1), ext))
             head = f.read(20)
             length = int.from_bytes(head[12:16], "little")
-            return _gltf_triangles(head + f.read(min(length, MAX_MESH_BYTES)), ext)
+            return _gltf_triangles(_gltf_document(head + f.read(min(length, MAX_MESH_BYTES)), ext))
     except OSError:
         return 0
 
 
-def _gltf_triangles(data: bytes, ext: str) -> int:
-    """About the triangles a glTF/GLB file makes trimesh build: each mesh's
-    (from its accessors' counts) once per node that instances it, and once if
-    none does (a mesh used by many nodes makes a small file declare billions).
-    0 when the JSON cannot be read (trimesh then reports the file)."""
+def _gltf_document(data: bytes, ext: str) -> dict | None:
+    """A glTF's JSON (a GLB's first chunk), or None if it cannot be read
+    (trimesh then reports the file)."""
     import json
 
     try:
         if ext == "glb":
             length = int.from_bytes(data[12:16], "little")
             if data[16:20] != b"JSON":
-                return 0
-            doc = json.loads(data[20:20 + length])
-        else:
-            doc = json.loads(data)
+                return None
+            data = data[20:20 + length]
+        doc = json.loads(data)
+    except (ValueError, RecursionError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _gltf_triangles(doc: dict | None) -> int:
+    """About the triangles a glTF/GLB file makes trimesh build: each mesh's
+    (from its accessors' counts) once per node that instances it, and once if
+    none does (a mesh used by many nodes makes a small file declare billions).
+    0 when the JSON cannot be read."""
+    try:
         accessors = doc.get("accessors", [])
 
         def triangles(mesh) -> int:
@@ -319,8 +332,48 @@ def _gltf_triangles(data: bytes, ext: str) -> int:
             if isinstance(node.get("mesh"), int) and 0 <= node["mesh"] < len(per_mesh):
                 uses[node["mesh"]] += 1
         return sum(n * max(1, k) for n, k in zip(per_mesh, uses))
-    except (ValueError, TypeError, AttributeError, KeyError, IndexError, RecursionError):
+    except (TypeError, AttributeError, KeyError, IndexError, ValueError):
         return 0
+
+
+def _gltf_files(doc: dict | None, directory: str, budget: int) -> dict[str, bytes]:
+    """The files a glTF names by URI (its ``.bin`` buffers, its images), read
+    for trimesh, which is given the file's bytes and so cannot find them
+    itself: only regular files inside the glTF's directory (trimesh's own
+    rule), at most ``budget`` bytes in all.  A URI that cannot be read is
+    left out (trimesh then reports it, or skips an image)."""
+    from urllib.parse import unquote
+
+    files, root = {}, os.path.realpath(directory or ".")
+    try:
+        uris = [(key, item.get("uri")) for key in ("buffers", "images") for item in doc.get(key, [])]
+    except (TypeError, AttributeError):
+        return files
+    for key, uri in uris:
+        if not isinstance(uri, str) or uri.startswith("data:") or uri in files:
+            continue
+        try:
+            path = os.path.realpath(os.path.join(root, unquote(uri)))
+            if os.path.commonpath([root, path]) != root:
+                raise MeshError(f"refers to {uri!r}, outside its directory")
+            info = os.stat(path)
+            if not stat.S_ISREG(info.st_mode):
+                raise MeshError(f"refers to {uri!r}, which is not a regular file")
+            if info.st_size > budget:
+                raise MeshError(f"refers to {uri!r}, which takes it past {MAX_MESH_BYTES} bytes")
+            with open(path, "rb") as f:
+                files[uri] = f.read(budget + 1)
+            budget -= len(files[uri])
+            if budget < 0:
+                raise MeshError(f"refers to {uri!r}, which takes it past {MAX_MESH_BYTES} bytes")
+        except (MeshError, OSError, ValueError) as e:
+            if key == "images":  # only materials read images, and wavefront takes its material from the scene
+                files.pop(uri, None)
+                continue
+            if isinstance(e, MeshError):
+                raise
+            raise MeshError(f"refers to {uri!r}, which cannot be read: {getattr(e, 'strerror', None) or e}") from None
+    return files
 
 
 def _text_as_utf8(data: bytes, ext: str) -> bytes:
