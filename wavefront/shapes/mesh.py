@@ -384,6 +384,8 @@ def _text_as_utf8(data: bytes, ext: str) -> bytes:
     numbers are unchanged.  Binary data is left alone: a binary STL (its
     triangle count matches its size), a PLY's body (only its header is text)."""
     def utf8(text: bytes) -> bytes:
+        if text.isascii():  # nearly every mesh file: no copy made to find out
+            return text
         try:
             text.decode("utf-8")
             return text
