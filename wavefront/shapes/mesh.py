@@ -191,9 +191,9 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     data = _text_as_utf8(data, ext)
     try:
         # load_scene and baking each instance here, not trimesh.load(force="mesh"): that
-        # concatenation drops the normals a file stores (smooth: true must use them)
-        # trimesh's arithmetic on hostile numbers (normals of 1e300 coordinates) only warns:
-        # what it returns is checked below, so its warnings would be noise beside that one message
+        # concatenation drops the normals a file stores (smooth: true must use them).
+        # trimesh's arithmetic on hostile numbers (normals of 1e300 coordinates) only
+        # warns; what it returns is checked below, and its warnings would be extra lines.
         with np.errstate(all="ignore"):
             scene = trimesh.load_scene(io.BytesIO(data), file_type=ext, process=False, **options)
             del data
