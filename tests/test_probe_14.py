@@ -92,6 +92,23 @@ def test_a_sliver_a_rotation_rounds_flat_is_dropped_not_the_whole_mesh(tmp_path)
     assert len(mesh) == 1 and mesh.dropped == 1
 
 
+def test_a_mesh_built_in_python_with_a_degenerate_face_is_checked_when_built():
+    """``Mesh(vertices, faces)`` with a zero-area face was accepted, and the
+    render then failed with a bare ``ValueError: a triangle has zero area``
+    naming nothing.  The face is dropped and counted, as a file's are; a mesh
+    of only such faces is a SceneError naming ``faces``."""
+    from wavefront import SceneError
+
+    vertices = np.array([[0, 0, -1], [1, 0, -1], [2, 0, -1], [0, 1, -1]], float)
+    with pytest.raises(SceneError, match="faces: has only degenerate"):
+        Mesh(vertices, np.array([[0, 1, 2]]), "w")
+    mesh = Mesh(vertices, np.array([[0, 1, 2], [0, 1, 3]]), "w")
+    assert len(mesh) == 1 and mesh.dropped == 1
+    scene = Scene(meshes=[mesh], materials={"w": Lambertian((0.5, 0.5, 0.5))}, width=4, height=4,
+                  render=RenderSettings(samples_per_pixel=1))
+    assert render(scene, workers=1).shape == (4, 4, 3)
+
+
 LATIN1_FILES = {
     "a.obj": b"# Cr\xe9\xe9 par un vieil exporteur\nv 0 0 -1\nv 1 0 -1\nv 0 1 -1\nf 1 2 3\n",
     "a.off": b"OFF\n# caf\xe9\n3 1 0\n0 0 -1\n1 0 -1\n0 1 -1\n3 0 1 2\n",

@@ -78,20 +78,23 @@ class Mesh:
         for key, value in mesh_fields(self, {"material": self.material, "smooth": self.smooth,
                                              "transform": self.transform}).items():
             set_field(self, key, value)
-        if self.transform is not None:  # every triangle where the ray tests will see it
-            v, f = self.transform.points(vertices.T), faces.T
-            with np.errstate(over="ignore", invalid="ignore"):
-                area2 = np.linalg.norm(np.cross(v[:, f[1]] - v[:, f[0]], v[:, f[2]] - v[:, f[0]], axis=0), axis=0)
-            flat = area2 == 0
-            if not np.abs(v).max() <= MAX_COORDINATE or not np.isfinite(area2).all() or flat.all():
-                fail(self, "transform", "the transform takes triangles beyond floating-point range "
-                                        "(non-finite, or flattened to zero area)")
-            if flat.any():
-                # a sliver the file holds (area 1e-17 of its size) may round to a line once
-                # turned: dropped and counted like the file's own degenerate faces, not the
-                # whole mesh refused
-                set_field(self, "faces", np.ascontiguousarray(faces[~flat]))
-                set_field(self, "dropped", self.dropped + int(flat.sum()))
+        # every triangle where the ray tests will see it (which refuse a zero area)
+        v, f = vertices.T if self.transform is None else self.transform.points(vertices.T), faces.T
+        with np.errstate(over="ignore", invalid="ignore"):
+            area2 = np.linalg.norm(np.cross(v[:, f[1]] - v[:, f[0]], v[:, f[2]] - v[:, f[0]], axis=0), axis=0)
+        flat = area2 == 0
+        if self.transform is not None and (not np.abs(v).max() <= MAX_COORDINATE or not np.isfinite(area2).all()
+                                           or flat.all()):
+            fail(self, "transform", "the transform takes triangles beyond floating-point range "
+                                    "(non-finite, or flattened to zero area)")
+        if flat.all():
+            fail(self, "faces", "has only degenerate (zero-area) triangles")
+        if flat.any():
+            # a face with repeated or collinear corners (built in Python), or a sliver the
+            # file holds (area 1e-17 of its size) that a rotation rounds to a line: dropped
+            # and counted like a file's degenerate faces, not the whole mesh refused
+            set_field(self, "faces", np.ascontiguousarray(faces[~flat]))
+            set_field(self, "dropped", self.dropped + int(flat.sum()))
 
     def __len__(self) -> int:
         return self.faces.shape[0]
