@@ -218,6 +218,7 @@ def test_settings_from_yaml():
     ({"russian_roulette": {"depth": 2.5}}, "render.russian_roulette.depth", "expected an integer"),
     ({"russian_roulette": {"start": 5}}, "render.russian_roulette.start", "unknown key"),
     ({"russian_roulette": 5}, "render.russian_roulette", "expected false, true or a mapping"),
+    ({"russian_roulette": None}, "render.russian_roulette", "got an empty value"),  # not silently off
 ])
 def test_bad_settings_name_their_yaml_path(value, path, words):
     with pytest.raises(SceneError) as e:

@@ -557,6 +557,10 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
                                      "spheres", "quads", "boxes", "triangles", "meshes", "media", "lights",
                                      "ambient"})
     image = _mapping(source, top.get("image"), "image", {"width", "height"})
+    if isinstance(top.get("render"), dict) and top["render"].get("russian_roulette", False) is None:
+        # an empty value (say, its depth line commented out) is not "off": RenderSettings reads None so
+        raise SceneError(source, "render.russian_roulette",
+                         "expected false, true or a mapping like {depth: 5}, got an empty value")
     render = _object(source, top.get("render"), "render", RenderSettings)
     camera = _object(source, top.get("camera"), "camera", Camera)
     background = _typed(source, top.get("background"), "background", _BACKGROUNDS, default="sky")
