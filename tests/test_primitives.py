@@ -150,13 +150,16 @@ def test_filtered_brute_force_equals_the_exact_test_of_every_pair(seed, scale, c
         distance = np.sqrt((to * to).sum(axis=0))
         direction = to / distance
         t_max = distance * np.where(rng.uniform(size=n) < 0.5, 1.0 - 1e-4, 1.0)
-    saved = primitives_module.FILTER_BLOCK_ELEMENTS
-    if blocks:  # a few primitives per block: ties across blocks go to the earlier block
-        primitives_module.FILTER_BLOCK_ELEMENTS = 5 * n
+    names = ("FILTER_PRIMITIVES", "FILTER_MIN_RAYS", "FILTER_BLOCK_ELEMENTS")
+    saved = [getattr(primitives_module, name) for name in names]
+    if blocks:  # 5 primitives and 40 rays per block: ties across blocks go to the earlier block
+        for name, value in zip(names, (5, 40, 200)):
+            setattr(primitives_module, name, value)
     try:
         assert_same(prims, origin, direction, t_max)
     finally:
-        primitives_module.FILTER_BLOCK_ELEMENTS = saved
+        for name, value in zip(names, saved):
+            setattr(primitives_module, name, value)
 
 
 def test_duplicate_quads_tie_to_the_lower_index():
