@@ -80,21 +80,22 @@ class SlabFilter:
             limit = float32_up(t_max)
         return origin.astype(np.float32), inverse, limit
 
-    def pairs(self, start: int, stop: int, rays) -> tuple[np.ndarray, np.ndarray]:
+    def pairs(self, start: int, stop: int, rays, ray_major: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """``(ray, primitive)`` index pairs (primitives ``start:stop``, numbered
-        from 0) the exact test must see, ray-major and by primitive within a ray."""
+        from 0) the exact test must see; with ``ray_major`` sorted by ray and
+        by primitive within a ray (what finding the nearest needs, not any-hit)."""
         origin, inverse, limit = rays
         m, n = stop - start, origin.shape[1]
         step = max(FILTER_MIN_RAYS, FILTER_BLOCK_ELEMENTS // m)
         if n <= step:
-            return self._pairs(start, stop, origin, inverse, limit)
+            return self._pairs(start, stop, origin, inverse, limit, ray_major)
         step = -(-n // -(-n // step))  # blocks of equal size
         found = [self._pairs(start, stop, origin[:, a:a + step], inverse[:, a:a + step],
-                             limit[a:a + step] if np.ndim(limit) else limit) for a in range(0, n, step)]
+                             limit[a:a + step] if np.ndim(limit) else limit, ray_major) for a in range(0, n, step)]
         return (np.concatenate([ray + a for (ray, _), a in zip(found, range(0, n, step))]),
                 np.concatenate([j for _, j in found]))
 
-    def _pairs(self, start, stop, origin, inverse, limit):
+    def _pairs(self, start, stop, origin, inverse, limit, ray_major):
         m, n = stop - start, origin.shape[1]
         # one axis at a time, so the temporaries are (m, n) and stay in cache
         entry, leave, t_lo, t_hi, t_far = (np.empty((m, n), np.float32) for _ in range(5))
@@ -114,6 +115,10 @@ class SlabFilter:
         np.fmax(entry, np.float32(0.0), out=entry)
         if np.ndim(limit) or limit < np.inf:
             np.fmin(leave, limit, out=leave)
+        if not ray_major:
+            slot = np.flatnonzero(entry <= leave)  # primitive * n + ray
+            j = slot // n
+            return slot - j * n, j
         slot = np.flatnonzero((entry <= leave).T)  # ray * m + primitive
         ray = slot // m
         return ray, slot - ray * m
@@ -244,6 +249,10 @@ class Primitives:
                 if keep.size == 0:
                     continue
                 ray, j, t = ray.take(keep), j.take(keep), t.take(keep)
+                if not (ray[1:] == ray[:-1]).any():  # one pair per ray (the usual case)
+                    best_t[ray] = t
+                    best_idx[ray] = offset + start + j
+                    continue
                 np.minimum.at(best_t, ray, t)
                 # a ray's pairs come by primitive, so its first at its minimum has the lowest index
                 won = np.flatnonzero(t == best_t.take(ray))
@@ -274,7 +283,7 @@ class Primitives:
             if live.size == 0:
                 break
             if slab is not None and rays32 is not None:
-                ray, j = slab.pairs(start, stop, rays32)
+                ray, j = slab.pairs(start, stop, rays32, ray_major=False)
                 if ray.size == 0:
                     continue
                 t = kind.t_pairs(start + j, o.take(ray, axis=1), d.take(ray, axis=1),
