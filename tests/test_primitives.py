@@ -35,7 +35,7 @@ def exact_only(prims: Primitives) -> Primitives:
     return twin
 
 
-def scene(rng, scale, n_boxes, n_quads, n_triangles, n_spheres, transform_names):
+def scene(rng, scale, n_boxes, n_quads, n_triangles, n_spheres, transform_names, dtype=np.float64):
     """A room of axis-aligned walls, boxes under the given transforms, loose
     quads and triangles of every orientation, and a few spheres, all within
     about 4 * scale of the origin."""
@@ -63,14 +63,14 @@ def scene(rng, scale, n_boxes, n_quads, n_triangles, n_spheres, transform_names)
         vs.append(rng.normal(size=3) * s * rng.choice([0.05, 0.5, 2.0]))
     extent = 8 * s
     quads = QuadSet(np.array(corners).T, np.array(us).T, np.array(vs).T, np.zeros(len(corners), np.int32),
-                    np.float64, extent)
+                    dtype, extent)
     v0 = rng.uniform(-2.5, 2.5, (3, n_triangles)) * s
     v1 = v0 + rng.normal(size=(3, n_triangles)) * s
     v2 = v0 + rng.normal(size=(3, n_triangles)) * s
-    triangles = TriangleSet(v0, v1, v2, np.zeros(n_triangles, np.int32), np.float64, extent)
+    triangles = TriangleSet(v0, v1, v2, np.zeros(n_triangles, np.int32), dtype, extent)
     spheres = SphereSet(rng.uniform(-2, 2, (3, n_spheres)) * s, rng.uniform(0.1, 0.6, n_spheres) * s,
-                        np.zeros(n_spheres, np.int32), np.float64)
-    return Primitives([spheres, quads, triangles], np.float64, exact_pad(np.float64, extent))
+                        np.zeros(n_spheres, np.int32), dtype)
+    return Primitives([spheres, quads, triangles], dtype, exact_pad(dtype, extent))
 
 
 def hard_rays(rng, prims, n, scale):
@@ -127,15 +127,18 @@ def assert_same(prims, origin, direction, t_max, time=None):
 @given(st.integers(0, 2**32 - 1), st.sampled_from([1e-3, 1.0, 555.0 / 6, 1e5]),
        st.tuples(st.integers(0, 4), st.integers(0, 12), st.integers(0, 12), st.integers(0, 3)),
        st.lists(st.sampled_from(sorted(TRANSFORMS)), min_size=1, max_size=4),
-       st.sampled_from(["inf", "scalar", "per ray", "segments"]), st.booleans())
-def test_filtered_brute_force_equals_the_exact_test_of_every_pair(seed, scale, counts, transforms, limit, blocks):
+       st.sampled_from(["inf", "scalar", "per ray", "segments"]), st.booleans(),
+       st.sampled_from([np.float64, np.float64, np.float32]))
+def test_filtered_brute_force_equals_the_exact_test_of_every_pair(seed, scale, counts, transforms, limit, blocks,
+                                                                  dtype):
     """Same primitive, same t, same any-hit answer as the exact test of every
     pair: for boxes under every kind of transform, walls, loose quads,
     triangles and spheres; for rays at edges and corners, from surfaces, along
     surfaces and along the axes; with no limit, one limit, a limit per ray,
-    and shadow-ray segments ending on quads (the emitter's own plane)."""
+    and shadow-ray segments ending on quads (the emitter's own plane); in
+    float64 and in float32 (a scene's ``precision: float32``)."""
     rng = np.random.default_rng(seed)
-    prims = scene(rng, scale, *counts, transforms)
+    prims = scene(rng, scale, *counts, transforms, dtype)
     n = 600
     origin, direction, target = hard_rays(rng, prims, n, scale)
     if limit == "inf":
@@ -155,6 +158,8 @@ def test_filtered_brute_force_equals_the_exact_test_of_every_pair(seed, scale, c
     if blocks:  # 5 primitives and 40 rays per block: ties across blocks go to the earlier block
         for name, value in zip(names, (5, 40, 200)):
             setattr(primitives_module, name, value)
+    origin, direction = origin.astype(dtype), direction.astype(dtype)
+    t_max = t_max if np.ndim(t_max) == 0 else t_max.astype(dtype)
     try:
         assert_same(prims, origin, direction, t_max)
     finally:
