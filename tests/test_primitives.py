@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 from wavefront import Transform
 from wavefront.shapes import Primitives, QuadSet, SphereSet, TriangleSet
 from wavefront.shapes import primitives as primitives_module
-from wavefront.shapes.base import exact_pad
+from wavefront.geometry import T_MIN
+from wavefront.shapes.base import exact_pad, in_box
 from wavefront.shapes.quad import box_quads
 from wavefront.vecmath import normalize
 
@@ -208,3 +209,37 @@ def test_boxes_under_each_transform(name):
         prims = scene(rng, scale, 3, 0, 0, 0, [name])
         origin, direction, _ = hard_rays(rng, prims, 2000, scale)
         assert_same(prims, origin, direction, np.inf)
+
+
+def textbook_quad_t(corner, normal, offset, alpha_axis, beta_axis, box_lo, box_hi, origin, direction):
+    """The quad test as RTOW writes it (what ``QuadSet.exact_t`` computed
+    before it ran its sums in place)."""
+    denom = normal[0] * direction[0] + normal[1] * direction[1] + normal[2] * direction[2]
+    t = offset - (normal[0] * origin[0] + normal[1] * origin[1] + normal[2] * origin[2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t /= denom
+        p = (origin[0] + t * direction[0], origin[1] + t * direction[1], origin[2] + t * direction[2])
+        q = (p[0] - corner[0], p[1] - corner[1], p[2] - corner[2])
+        a = q[0] * alpha_axis[0] + q[1] * alpha_axis[1] + q[2] * alpha_axis[2]
+        b = q[0] * beta_axis[0] + q[1] * beta_axis[1] + q[2] * beta_axis[2]
+        ok = (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & in_box(p, box_lo, box_hi)
+    return np.where(ok, t, np.inf)
+
+
+@settings(deadline=None, max_examples=30)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([1e-3, 1.0, 1e4]), st.sampled_from([np.float64, np.float32]))
+def test_the_quad_test_is_the_textbook_arithmetic_bit_for_bit(seed, scale, dtype):
+    """In place or not, the quad test computes the same numbers, broadcast
+    over a block and pair by pair (the BVH's and the filter's way)."""
+    rng = np.random.default_rng(seed)
+    prims = scene(rng, scale, 3, 8, 0, 0, sorted(TRANSFORMS), dtype)
+    quads = prims.kinds[[type(k) for k in prims.kinds].index(QuadSet)]
+    origin, direction, _ = hard_rays(rng, prims, 300, scale)
+    origin, direction = origin.astype(dtype), direction.astype(dtype)
+    block = quads.t_block(0, len(quads), origin, direction)
+    want = textbook_quad_t(*quads.block(0, len(quads)), origin[:, None, :], direction[:, None, :])
+    np.testing.assert_array_equal(block, want)
+    assert np.isfinite(want).any()
+    idx = rng.integers(0, len(quads), origin.shape[1])
+    np.testing.assert_array_equal(quads.t_pairs(idx, origin, direction),
+                                  textbook_quad_t(*quads.gather(idx), origin, direction))

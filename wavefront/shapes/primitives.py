@@ -99,19 +99,22 @@ class SlabFilter:
         m, n = stop - start, origin.shape[1]
         # one axis at a time, so the temporaries are (m, n) and stay in cache
         entry, leave, t_lo, t_hi, t_far = (np.empty((m, n), np.float32) for _ in range(5))
-        for axis in range(3):
-            o, inv = origin[axis], inverse[axis]
-            np.subtract(self.lo[axis, start:stop, None], o, out=t_lo)
-            t_lo *= inv
-            np.subtract(self.hi[axis, start:stop, None], o, out=t_hi)
-            t_hi *= inv
-            # fmin/fmax: a 0 * inf NaN (an origin on a plane the ray is parallel to) drops out
-            if axis == 0:
-                np.fmin(t_lo, t_hi, out=entry)
-                np.fmax(t_lo, t_hi, out=leave)
-            else:
-                np.fmin(leave, np.fmax(t_lo, t_hi, out=t_far), out=leave)
-                np.fmax(entry, np.fmin(t_lo, t_hi, out=t_lo), out=entry)
+        # 0 * inf is NaN (an origin on a plane the ray is parallel to), a huge
+        # quotient overflows to inf: both are handled below, not errors
+        with np.errstate(invalid="ignore", over="ignore"):
+            for axis in range(3):
+                o, inv = origin[axis], inverse[axis]
+                np.subtract(self.lo[axis, start:stop, None], o, out=t_lo)
+                t_lo *= inv
+                np.subtract(self.hi[axis, start:stop, None], o, out=t_hi)
+                t_hi *= inv
+                # fmin/fmax: a 0 * inf NaN (an origin on a plane the ray is parallel to) drops out
+                if axis == 0:
+                    np.fmin(t_lo, t_hi, out=entry)
+                    np.fmax(t_lo, t_hi, out=leave)
+                else:
+                    np.fmin(leave, np.fmax(t_lo, t_hi, out=t_far), out=leave)
+                    np.fmax(entry, np.fmin(t_lo, t_hi, out=t_lo), out=entry)
         np.fmax(entry, np.float32(0.0), out=entry)
         if np.ndim(limit) or limit < np.inf:
             np.fmin(leave, limit, out=leave)

@@ -186,14 +186,41 @@ class QuadSet(ShapeKind):
     @staticmethod
     def exact_t(corner, normal, offset, alpha_axis, beta_axis, box_lo, box_hi, origin, direction):
         """RTOW's ray-quad test, plus the hit point inside the quad's padded
-        box (see :func:`wavefront.shapes.base.exact_pad`); ``inf`` for a miss."""
-        denom = normal[0] * direction[0] + normal[1] * direction[1] + normal[2] * direction[2]
-        t = offset - (normal[0] * origin[0] + normal[1] * origin[1] + normal[2] * origin[2])
+        box (see :func:`wavefront.shapes.base.exact_pad`); ``inf`` for a miss.
+
+        The sums run in place but in the order of the textbook expressions
+        (``n . d = (n0 d0 + n1 d1) + n2 d2``, ``t = (offset - n . o) / (n . d)``,
+        ``p = o + t d``, ``a = (p - corner) . alpha_axis``), so every result is
+        the same bit for bit (``tests/test_primitives.py`` checks it against
+        the textbook expressions).  Fewer temporaries: on the Cornell box's
+        4,309 exact pairs of one batch 73-99 -> 65 us, on a block of its 18
+        quads x 4,096 rays 2.9 -> 2.1 ms.
+        """
+        denom = normal[0] * direction[0]
+        denom += normal[1] * direction[1]
+        denom += normal[2] * direction[2]
+        t = normal[0] * origin[0]
+        t += normal[1] * origin[1]
+        t += normal[2] * origin[2]
+        np.subtract(offset, t, out=t)
         with np.errstate(divide="ignore", invalid="ignore"):
             t /= denom  # a ray in the plane gives inf or NaN, and fails every test below
-            p = (origin[0] + t * direction[0], origin[1] + t * direction[1], origin[2] + t * direction[2])
-            a, b = QuadSet.planar(corner, alpha_axis, beta_axis, *p)
-            ok = (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & in_box(p, box_lo, box_hi)
+            ok = t > T_MIN
+            axes = []
+            for k in range(3):
+                p = t * direction[k]
+                p += origin[k]
+                ok &= p >= box_lo[k]
+                ok &= p <= box_hi[k]
+                p -= corner[k]  # now q = p - corner
+                axes.append(p)
+            qx, qy, qz = axes
+            for axis in (alpha_axis, beta_axis):
+                c = qx * axis[0]
+                c += qy * axis[1]
+                c += qz * axis[2]
+                ok &= c >= 0
+                ok &= c <= 1
         return np.where(ok, t, np.inf)
 
     def surface(self, idx, origin, direction, t, uv: bool, time=None):
