@@ -162,6 +162,28 @@ class QuadSet(ShapeKind):
         self.bounds_lo, self.bounds_hi = corners.min(axis=0), corners.max(axis=0)
         self.box_lo, self.box_hi = store(self.bounds_lo - pad), store(self.bounds_hi + pad)
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
+        # The exact test's fields as 19 rows of one array (each field a view of
+        # its rows), so the (ray, quad) pairs of brute force's filter and of the
+        # BVH gather them in one call: 4,309 pairs of the Cornell box took 42 us
+        # so, 154 us as seven gathers (in isolation; whole renders ~2 % faster).
+        self.field_rows = np.ascontiguousarray(np.concatenate([np.atleast_2d(getattr(self, f)) for f in self.FIELDS]))
+        (self.corner, self.normal, self.offset, self.alpha_axis, self.beta_axis, self.box_lo,
+         self.box_hi) = self._split(self.field_rows)
+
+    @staticmethod
+    def _split(rows):
+        """``corner, normal, offset, alpha_axis, beta_axis, box_lo, box_hi`` (``FIELDS``) from their 19 rows."""
+        return rows[0:3], rows[3:6], rows[6], rows[7:10], rows[10:13], rows[13:16], rows[16:19]
+
+    def gather(self, idx: np.ndarray) -> list:
+        return list(self._split(self.field_rows.take(idx, axis=1)))  # (19, P)
+
+    def subset(self, idx: np.ndarray):
+        part = super().subset(idx)
+        part.field_rows = np.ascontiguousarray(np.take(self.field_rows, idx, axis=-1))
+        (part.corner, part.normal, part.offset, part.alpha_axis, part.beta_axis, part.box_lo,
+         part.box_hi) = part._split(part.field_rows)
+        return part
 
     @classmethod
     def build(cls, quads: list[Quad], material_idx, dtype, extent) -> QuadSet:
