@@ -4,8 +4,10 @@ Kinds come in a fixed order (spheres, quads, triangles); primitive ``i`` of
 kind ``k`` has the scene-wide index ``offsets[k] + i``.  :class:`Primitives`
 is also the brute-force intersector: each kind's primitives are tested in
 blocks broadcast against all rays, so the Python loop runs over a few kinds
-and blocks, never over rays.  The BVH (:mod:`wavefront.bvh`) has the same
-interface and finds exactly the same primitive at exactly the same ``t``.
+and blocks, never over rays; quads and triangles pass a float32 slab test
+(:class:`SlabFilter`) first and only the pairs it keeps get the exact test.
+The BVH (:mod:`wavefront.bvh`) has the same interface and finds exactly the
+same primitive at exactly the same ``t``.
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ class SlabFilter:
 
     @staticmethod
     def usable(kind: ShapeKind) -> bool:
+        """Whether ``kind`` has padded boxes (quads, triangles) within an extent float32 can carry."""
         return (hasattr(kind, "box_lo") and hasattr(kind, "pad")
                 and pad_extent(kind.dtype, kind.pad) <= FILTER_MAX_EXTENT)
 
