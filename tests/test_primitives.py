@@ -84,6 +84,9 @@ def hard_rays(rng, prims, n, scale):
     direction = normalize(rng.normal(size=(3, n)))
     k = n // 8
     direction[:, :6] = np.eye(3)[:, [0, 1, 2, 0, 1, 2]] * np.array([1, 1, 1, -1, -1, -1])  # axis-aligned
+    # nearly axis-aligned: components whose reciprocals overflow float32 (or even float64)
+    tiny = np.array([1e-39, -1e-42, 1e-300, -1e-320, 3e-38, 0.0])
+    direction[:, 6:12] = normalize(np.eye(3)[:, [0, 1, 2, 0, 1, 2]] + tiny[None, :] * np.array([[0], [1], [-1]]))
     pick = rng.integers(0, m, n)
     a, b = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
     # on an edge or at a corner: a or b (or both) exactly 0 or 1
@@ -92,7 +95,7 @@ def hard_rays(rng, prims, n, scale):
     b = np.where(edge == 2, 0.0, np.where(edge == 3, 1.0, b))
     b = np.where(rng.uniform(size=n) < 0.2, np.round(b), b)
     target = quads.corner[:, pick] + a * quads.u[:, pick] + b * quads.v[:, pick]
-    rows = slice(6, 6 + 3 * k)
+    rows = slice(12, 6 + 3 * k)
     direction[:, rows] = normalize(target[:, rows] - origin[:, rows])
     # from points on quads (bounce rays), some leaving along the surface
     rows = slice(6 + 3 * k, 6 + 5 * k)
@@ -216,7 +219,7 @@ def textbook_quad_t(corner, normal, offset, alpha_axis, beta_axis, box_lo, box_h
     before it ran its sums in place)."""
     denom = normal[0] * direction[0] + normal[1] * direction[1] + normal[2] * direction[2]
     t = offset - (normal[0] * origin[0] + normal[1] * origin[1] + normal[2] * origin[2])
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t /= denom
         p = (origin[0] + t * direction[0], origin[1] + t * direction[1], origin[2] + t * direction[2])
         q = (p[0] - corner[0], p[1] - corner[1], p[2] - corner[2])

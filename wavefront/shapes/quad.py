@@ -225,8 +225,9 @@ class QuadSet(ShapeKind):
         t += normal[1] * origin[1]
         t += normal[2] * origin[2]
         np.subtract(offset, t, out=t)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t /= denom  # a ray in the plane gives inf or NaN, and fails every test below
+        # a ray in (or all but in) the plane gives inf or NaN, and fails every test below
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            t /= denom
             ok = t > T_MIN
             axes = []
             for k in range(3):
