@@ -12,7 +12,7 @@ from ..geometry import T_MIN, check_world_flat, material_field, position
 from ..transform import Transform, transform_field
 from ..validation import fail
 from ..vecmath import gather
-from .base import ShapeKind, box_bounding_sphere, exact_pad, in_box
+from .base import ShapeKind, box_bounding_sphere, exact_pad
 
 Vec3 = tuple[float, float, float]
 
