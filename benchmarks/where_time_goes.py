@@ -29,6 +29,7 @@ STAGES = (
     ("  brute force (the whole scene, or a BVH's outsized primitives)", "primitives.py", "intersect"),
     ("  BVH tree walk", "bvh.py", "_traverse"),
     ("    BVH leaf tests", "bvh.py", "test_leaves"),
+    ("brute force's float32 slab filter (in the nearest-hit and the shadow-ray queries)", "primitives.py", "pairs"),
     ("hit points and normals (SurfaceHits)", "primitives.py", "surface"),
     ("camera rays (refill)", "path.py", "camera_paths"),
     ("lambertian kernel", "materials.py", "scatter_lambertian"),

@@ -5,7 +5,11 @@ from __future__ import annotations
 from .shapes import Primitives
 
 # Below this many primitives, testing every ray against every primitive in a
-# few broadcast blocks beats any hierarchy's bookkeeping.
+# few broadcast blocks beats any hierarchy's bookkeeping.  With brute force's
+# float32 slab filter, random triangle soups (one core, a nearest-hit and a
+# shadow query per ray) cost 416 / 926 / 1,779 ns per ray by brute force at
+# 32 / 64 / 128 triangles and 555 / 820 / 1,138 ns through the BVH (without
+# the filter brute force took 4,043 ns at 32).
 BVH_THRESHOLD = 64
 
 

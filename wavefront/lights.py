@@ -246,24 +246,34 @@ class EmitterTable:
             uv[:, tris] = (1.0 - s) * corner[0] + b1 * corner[1] + b2 * corner[2]
         radiance[:, rows] = self.textures.evaluate(self.texture.take(er), gather(point, rows), uv)
 
+    def _columns(self, e, *arrays):
+        """Each array's columns ``e``; with one emitter its single column, which
+        broadcasts (the same numbers without gathering them per sample: RTOW's
+        scenes have one light)."""
+        if len(self) == 1:
+            return [a[..., :1] for a in arrays]
+        return [np.take(a, e, axis=-1) for a in arrays]
+
     def _centers(self, e, time):
-        center = self.origin[:, e]
+        center = self.origin.take(e, axis=1)
         if self.velocity is None or time is None:
             return center
-        return center + self.velocity[:, e] * time
+        return center + self.velocity.take(e, axis=1) * time
 
     def _sample_spheres(self, e, ref, u, time=None):
-        return sample_sphere(self._centers(e, time), self.radius[e], ref, u)
+        return sample_sphere(self._centers(e, time), self.radius.take(e), ref, u)
+
+    def _sample_flat(self, sampler, e, ref, u):
+        corner, edge1, edge2, area, normal = self._columns(e, self.origin, self.edge1, self.edge2, self.area,
+                                                           self.normal)
+        point, pdf_area = sampler(corner, edge1, edge2, u, area)
+        return point, np.broadcast_to(normal, point.shape), area_to_solid_angle(pdf_area, ref, point, normal)
 
     def _sample_quads(self, e, ref, u, time=None):
-        point, pdf_area = sample_quad(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u, self.area[e])
-        normal = self.normal[:, e]
-        return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
+        return self._sample_flat(sample_quad, e, ref, u)
 
     def _sample_triangles(self, e, ref, u, time=None):
-        point, pdf_area = sample_triangle(self.origin[:, e], self.edge1[:, e], self.edge2[:, e], u, self.area[e])
-        normal = self.normal[:, e]
-        return point, normal, area_to_solid_angle(pdf_area, ref, point, normal)
+        return self._sample_flat(sample_triangle, e, ref, u)
 
     def pdf(self, e: np.ndarray, reference: np.ndarray, point: np.ndarray, time=None) -> np.ndarray:
         """Solid-angle pdf (emitter choice included) with which :meth:`sample`

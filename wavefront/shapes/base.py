@@ -144,6 +144,21 @@ def exact_pad(dtype, extent: float) -> float:
     return 16.0 * float(np.finfo(dtype).eps) * max(extent, 1.0)
 
 
+def pad_extent(dtype, pad: float) -> float:
+    """The ``max(extent, 1)`` that :func:`exact_pad` grew a flat kind's boxes for."""
+    return pad / (16.0 * float(np.finfo(dtype).eps))
+
+
+def float32_down(x) -> np.ndarray:
+    """``x`` in float32, rounded towards -inf (a lower bound that stays one)."""
+    return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
+
+
+def float32_up(x) -> np.ndarray:
+    """``x`` in float32, rounded towards +inf."""
+    return np.nextafter(np.asarray(x).astype(np.float32), np.float32(np.inf))
+
+
 def box_bounding_sphere(lo, hi):
     """The sphere through the corners of each box: holds every point of the box."""
     center = 0.5 * (lo + hi)

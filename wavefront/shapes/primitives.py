@@ -4,8 +4,10 @@ Kinds come in a fixed order (spheres, quads, triangles); primitive ``i`` of
 kind ``k`` has the scene-wide index ``offsets[k] + i``.  :class:`Primitives`
 is also the brute-force intersector: each kind's primitives are tested in
 blocks broadcast against all rays, so the Python loop runs over a few kinds
-and blocks, never over rays.  The BVH (:mod:`wavefront.bvh`) has the same
-interface and finds exactly the same primitive at exactly the same ``t``.
+and blocks, never over rays; quads and triangles pass a float32 slab test
+(:class:`SlabFilter`) first and only the pairs it keeps get the exact test.
+The BVH (:mod:`wavefront.bvh`) has the same interface and finds exactly the
+same primitive at exactly the same ``t``.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import BLOCK_ELEMENTS, escaped_at_inf
-from .base import Hits, ShapeKind, SurfaceHits
+from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_extent
 
 # Rays tested together by brute force.  Each of the exact tests' ~40
 # operations makes a (primitives, rays) temporary: with a few thousand rays
@@ -21,6 +23,112 @@ from .base import Hits, ShapeKind, SurfaceHits
 # renders (128x128, 64 spp, one core, interleaved in one process): 4.41 s with
 # the whole wavefront at once, 4.17 s at 4096, 4.44 s at 2048.
 BRUTE_FORCE_RAYS = 4096
+
+# The float32 slab pre-filter of flat primitives (see SlabFilter) grows each
+# primitive's padded box by this much of the scene's extent E: far more than
+# its own rounding, a few float32 epsilons (2**-24) of E, plus the exact
+# test's few float64 epsilons of E by which its hit point may stray from the
+# ray.  In the Cornell box it is 0.009 of a 555-unit room.
+FILTER_PAD = 2.0 ** -17
+# Beyond this extent float32 coordinates cannot carry the filter's pad: flat
+# primitives are then tested exactly against every ray.
+FILTER_MAX_EXTENT = 1e30
+# Elements of one (primitives x rays) block of the slab filter, which bounds
+# its five float32 temporaries.  Splitting the Cornell box's 18 quads x 4096
+# rays into smaller blocks of rays measured no faster in whole renders.  Brute
+# force tests at most FILTER_PRIMITIVES primitives per block, and rays
+# FILTER_MIN_RAYS or more at a time.
+FILTER_BLOCK_ELEMENTS = 1 << 17
+FILTER_PRIMITIVES = 128
+FILTER_MIN_RAYS = 256
+
+
+class SlabFilter:
+    """A conservative float32 test of every (ray, primitive) pair before the exact one.
+
+    The quad and triangle tests accept a hit only at a computed point inside
+    the primitive's padded box (``box_lo``, ``box_hi``; see
+    :func:`~wavefront.shapes.base.exact_pad`), so a ray that does not enter
+    that box, grown by :data:`FILTER_PAD`, between 0 and its ``t_max`` cannot
+    have an exact hit: the slab test against the grown box, in float32 from
+    rays whose origins lie within the extent, rounds by far less than the
+    growth.  Only the pairs it keeps are tested exactly, pair by pair, with
+    the same arithmetic as the broadcast test (each kind's ``t_pairs``), so
+    the hits are bit for bit those of testing every pair.  In the Cornell box
+    it keeps ~2.2 of 18 quads per camera or bounce ray and ~1.7 per shadow
+    ray (about one of them the quad the ray leaves), where every primitive's
+    plane is crossed by half the rays.
+    """
+
+    def __init__(self, kind: ShapeKind):
+        extent = max(pad_extent(kind.dtype, kind.pad), float(np.abs(kind.box_lo).max(initial=0.0)),
+                     float(np.abs(kind.box_hi).max(initial=0.0)))
+        self.reach = extent  # rays must start within this distance of the origin (per coordinate)
+        grow = FILTER_PAD * extent
+        self.lo = np.ascontiguousarray(float32_down(kind.box_lo.astype(np.float64) - grow))
+        self.hi = np.ascontiguousarray(float32_up(kind.box_hi.astype(np.float64) + grow))
+
+    @staticmethod
+    def usable(kind: ShapeKind) -> bool:
+        """Whether ``kind`` has padded boxes (quads, triangles) within an extent float32 can carry."""
+        return (hasattr(kind, "box_lo") and hasattr(kind, "pad")
+                and pad_extent(kind.dtype, kind.pad) <= FILTER_MAX_EXTENT)
+
+    @staticmethod
+    def rays(origin, direction, t_max):
+        """The rays in float32: ``origin``, ``1 / direction`` (3, N) and ``t_max``
+        rounded up (scalar or (N,)); 1 / d beyond float32 becomes inf, which the
+        slab test handles (the ray is then parallel to those planes)."""
+        with np.errstate(divide="ignore", over="ignore"):
+            inverse = (1.0 / direction).astype(np.float32)
+            limit = float32_up(t_max)
+        return origin.astype(np.float32), inverse, limit
+
+    def pairs(self, start: int, stop: int, rays, ray_major: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """``(ray, primitive)`` index pairs (primitives ``start:stop``, numbered
+        from 0) the exact test must see; with ``ray_major`` sorted by ray and
+        by primitive within a ray (what finding the nearest needs, not any-hit)."""
+        origin, inverse, limit = rays
+        m, n = stop - start, origin.shape[1]
+        step = max(FILTER_MIN_RAYS, FILTER_BLOCK_ELEMENTS // m)
+        if n <= step:
+            return self._pairs(start, stop, origin, inverse, limit, ray_major)
+        step = -(-n // -(-n // step))  # blocks of equal size
+        found = [self._pairs(start, stop, origin[:, a:a + step], inverse[:, a:a + step],
+                             limit[a:a + step] if np.ndim(limit) else limit, ray_major) for a in range(0, n, step)]
+        return (np.concatenate([ray + a for (ray, _), a in zip(found, range(0, n, step))]),
+                np.concatenate([j for _, j in found]))
+
+    def _pairs(self, start, stop, origin, inverse, limit, ray_major):
+        m, n = stop - start, origin.shape[1]
+        # one axis at a time, so the temporaries are (m, n) and stay in cache
+        entry, leave, t_lo, t_hi, t_far = (np.empty((m, n), np.float32) for _ in range(5))
+        # 0 * inf is NaN (an origin on a plane the ray is parallel to), a huge
+        # quotient overflows to inf: both are handled below, not errors
+        with np.errstate(invalid="ignore", over="ignore"):
+            for axis in range(3):
+                o, inv = origin[axis], inverse[axis]
+                np.subtract(self.lo[axis, start:stop, None], o, out=t_lo)
+                t_lo *= inv
+                np.subtract(self.hi[axis, start:stop, None], o, out=t_hi)
+                t_hi *= inv
+                # fmin/fmax: a 0 * inf NaN (an origin on a plane the ray is parallel to) drops out
+                if axis == 0:
+                    np.fmin(t_lo, t_hi, out=entry)
+                    np.fmax(t_lo, t_hi, out=leave)
+                else:
+                    np.fmin(leave, np.fmax(t_lo, t_hi, out=t_far), out=leave)
+                    np.fmax(entry, np.fmin(t_lo, t_hi, out=t_lo), out=entry)
+        np.fmax(entry, np.float32(0.0), out=entry)
+        if np.ndim(limit) or limit < np.inf:
+            np.fmin(leave, limit, out=leave)
+        if not ray_major:
+            slot = np.flatnonzero(entry <= leave)  # primitive * n + ray
+            j = slot // n
+            return slot - j * n, j
+        slot = np.flatnonzero((entry <= leave).T)  # ray * m + primitive
+        ray = slot // m
+        return ray, slot - ray * m
 
 
 class Primitives:
@@ -40,6 +148,8 @@ class Primitives:
         self.offsets = np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
         self.material_idx = (np.concatenate([k.material_idx for k in self.kinds]) if self.kinds
                              else np.zeros(0, dtype=np.int32))
+        # the float32 pre-filter of each flat kind (None: every pair is tested exactly)
+        self.filters = [SlabFilter(k) if SlabFilter.usable(k) else None for k in self.kinds]
 
     def __len__(self) -> int:
         return int(self.offsets[-1])
@@ -76,14 +186,6 @@ class Primitives:
 
     # -- queries ---------------------------------------------------------------
 
-    def _blocks(self, n: int):
-        """(kind, scene-wide offset of the block, start, stop) over every primitive."""
-        for kind, offset in zip(self.kinds, self.offsets):
-            m = len(kind)
-            block = max(1, min(m, BLOCK_ELEMENTS // max(n, 1)))
-            for start in range(0, m, block):
-                yield kind, int(offset), start, min(m, start + block)
-
     def intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
         """Nearest hit with ``T_MIN < t < t_max`` for every ray, by brute force,
         :data:`BRUTE_FORCE_RAYS` rays at a time (see :meth:`_intersect`)."""
@@ -108,12 +210,27 @@ class Primitives:
             return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.primitive_idx for h in parts]))
         return np.concatenate(parts)
 
+    def _blocks(self, n: int):
+        """(kind, its filter, scene-wide offset of the block, start, stop) over every primitive."""
+        for kind, slab, offset in zip(self.kinds, self.filters, self.offsets):
+            m = len(kind)
+            block = FILTER_PRIMITIVES if slab is not None else max(1, min(m, BLOCK_ELEMENTS // max(n, 1)))
+            for start in range(0, m, block):
+                yield kind, slab, int(offset), start, min(m, start + block)
+
+    def _filtered(self, origin) -> bool:
+        """Whether the slab filters may be used for rays from ``origin`` (all
+        within every filter's reach; they are, from any point of the scene)."""
+        reach = min((f.reach for f in self.filters if f is not None), default=0.0)
+        return bool(reach) and origin.shape[1] > 0 and float(np.abs(origin).max()) <= reach
+
     def _intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
         """Nearest hit with ``T_MIN < t < t_max`` for every ray, by brute force.
 
         The nearest primitive of a block is found with a ``min`` reduction and
         an integer blend (lowest index wins a tie) rather than ``argmin``, a
-        slow, branchy loop along the first axis.
+        slow, branchy loop along the first axis.  Flat primitives are tested
+        exactly only where their :class:`SlabFilter` lets a pair through.
 
         Parameters
         ----------
@@ -126,7 +243,30 @@ class Primitives:
         n = origin.shape[1]
         best_t = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,)).copy()
         best_idx = np.full(n, -1, dtype=np.int64)
-        for kind, offset, start, stop in self._blocks(n):
+        rays32 = SlabFilter.rays(origin, direction, t_max) if self._filtered(origin) else None
+        for kind, slab, offset, start, stop in self._blocks(n):
+            if slab is not None and rays32 is not None:
+                ray, j = slab.pairs(start, stop, rays32)
+                if ray.size == 0:
+                    continue
+                t = kind.t_pairs(start + j, origin.take(ray, axis=1), direction.take(ray, axis=1),
+                                 None if time is None else time.take(ray))
+                # strict, as below: an earlier block keeps a tie
+                keep = np.flatnonzero(t < best_t.take(ray))
+                if keep.size == 0:
+                    continue
+                ray, j, t = ray.take(keep), j.take(keep), t.take(keep)
+                if not (ray[1:] == ray[:-1]).any():  # one pair per ray (the usual case)
+                    best_t[ray] = t
+                    best_idx[ray] = offset + start + j
+                    continue
+                np.minimum.at(best_t, ray, t)
+                # a ray's pairs come by primitive, so its first at its minimum has the lowest index
+                won = np.flatnonzero(t == best_t.take(ray))
+                ray_won = ray.take(won)
+                first = won[np.concatenate(([True], ray_won[1:] != ray_won[:-1]))]
+                best_idx[ray.take(first)] = offset + start + j.take(first)
+                continue
             t = kind.t_block(start, stop, origin, direction, time)
             t_block = np.fmin.reduce(t, axis=0)  # fmin: a miss may be NaN
             # strict: an earlier block keeps a tie; false where nothing was hit
@@ -145,15 +285,27 @@ class Primitives:
         blocked = np.zeros(n, dtype=bool)
         live = np.arange(n)
         o, d, lim, tm = origin, direction, limit, time
-        for kind, _, start, stop in self._blocks(n):
+        rays32 = SlabFilter.rays(origin, direction, limit) if self._filtered(origin) else None
+        for kind, slab, _, start, stop in self._blocks(n):
             if live.size == 0:
                 break
-            hit = (kind.t_block(start, stop, o, d, tm) < lim).any(axis=0)  # NaN compares false
+            if slab is not None and rays32 is not None:
+                ray, j = slab.pairs(start, stop, rays32, ray_major=False)
+                if ray.size == 0:
+                    continue
+                t = kind.t_pairs(start + j, o.take(ray, axis=1), d.take(ray, axis=1),
+                                 None if tm is None else tm.take(ray))
+                hit = np.zeros(live.size, dtype=bool)
+                hit[ray[t < lim.take(ray)]] = True  # NaN compares false
+            else:
+                hit = (kind.t_block(start, stop, o, d, tm) < lim).any(axis=0)  # NaN compares false
             if hit.any():
                 blocked[live[hit]] = True
                 keep = np.flatnonzero(~hit)
                 live, o, d, lim = live.take(keep), o.take(keep, axis=1), d.take(keep, axis=1), lim.take(keep)
                 tm = None if tm is None else tm.take(keep)
+                if rays32 is not None:
+                    rays32 = (rays32[0].take(keep, axis=1), rays32[1].take(keep, axis=1), rays32[2].take(keep))
         return blocked
 
     def t_pairs(self, idx: np.ndarray, origin, direction, time=None) -> np.ndarray:

@@ -12,7 +12,7 @@ from ..geometry import T_MIN, check_world_flat, material_field, position
 from ..transform import Transform, transform_field
 from ..validation import fail
 from ..vecmath import gather
-from .base import ShapeKind, box_bounding_sphere, exact_pad, in_box
+from .base import ShapeKind, box_bounding_sphere, exact_pad
 
 Vec3 = tuple[float, float, float]
 
@@ -162,6 +162,28 @@ class QuadSet(ShapeKind):
         self.bounds_lo, self.bounds_hi = corners.min(axis=0), corners.max(axis=0)
         self.box_lo, self.box_hi = store(self.bounds_lo - pad), store(self.bounds_hi + pad)
         self.material_idx = np.ascontiguousarray(material_idx, dtype=np.int32)
+        # The exact test's fields as 19 rows of one array (each field a view of
+        # its rows), so the (ray, quad) pairs of brute force's filter and of the
+        # BVH gather them in one call: 4,309 pairs of the Cornell box took 42 us
+        # so, 154 us as seven gathers (in isolation; whole renders ~2 % faster).
+        self.field_rows = np.ascontiguousarray(np.concatenate([np.atleast_2d(getattr(self, f)) for f in self.FIELDS]))
+        (self.corner, self.normal, self.offset, self.alpha_axis, self.beta_axis, self.box_lo,
+         self.box_hi) = self._split(self.field_rows)
+
+    @staticmethod
+    def _split(rows):
+        """``corner, normal, offset, alpha_axis, beta_axis, box_lo, box_hi`` (``FIELDS``) from their 19 rows."""
+        return rows[0:3], rows[3:6], rows[6], rows[7:10], rows[10:13], rows[13:16], rows[16:19]
+
+    def gather(self, idx: np.ndarray) -> list:
+        return list(self._split(self.field_rows.take(idx, axis=1)))  # (19, P)
+
+    def subset(self, idx: np.ndarray):
+        part = super().subset(idx)
+        part.field_rows = np.ascontiguousarray(np.take(self.field_rows, idx, axis=-1))
+        (part.corner, part.normal, part.offset, part.alpha_axis, part.beta_axis, part.box_lo,
+         part.box_hi) = part._split(part.field_rows)
+        return part
 
     @classmethod
     def build(cls, quads: list[Quad], material_idx, dtype, extent) -> QuadSet:
@@ -186,15 +208,77 @@ class QuadSet(ShapeKind):
     @staticmethod
     def exact_t(corner, normal, offset, alpha_axis, beta_axis, box_lo, box_hi, origin, direction):
         """RTOW's ray-quad test, plus the hit point inside the quad's padded
-        box (see :func:`wavefront.shapes.base.exact_pad`); ``inf`` for a miss."""
-        denom = normal[0] * direction[0] + normal[1] * direction[1] + normal[2] * direction[2]
-        t = offset - (normal[0] * origin[0] + normal[1] * origin[1] + normal[2] * origin[2])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t /= denom  # a ray in the plane gives inf or NaN, and fails every test below
-            p = (origin[0] + t * direction[0], origin[1] + t * direction[1], origin[2] + t * direction[2])
-            a, b = QuadSet.planar(corner, alpha_axis, beta_axis, *p)
-            ok = (t > T_MIN) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1) & in_box(p, box_lo, box_hi)
+        box (see :func:`wavefront.shapes.base.exact_pad`); ``inf`` for a miss.
+
+        The sums run in place but in the order of the textbook expressions
+        (``n . d = (n0 d0 + n1 d1) + n2 d2``, ``t = (offset - n . o) / (n . d)``,
+        ``p = o + t d``, ``a = (p - corner) . alpha_axis``), so every result is
+        the same bit for bit (``tests/test_primitives.py`` checks it against
+        the textbook expressions).  Fewer temporaries: on the Cornell box's
+        4,309 exact pairs of one batch 73-99 -> 65 us, on a block of its 18
+        quads x 4,096 rays 2.9 -> 2.1 ms.
+        """
+        t = QuadSet.plane_t(normal, offset, origin, direction)
+        return QuadSet.accept(t, corner, alpha_axis, beta_axis, box_lo, box_hi, origin, direction)
+
+    @staticmethod
+    def plane_t(normal, offset, origin, direction):
+        """Where the rays meet the quads' planes: the first half of :meth:`exact_t`."""
+        denom = normal[0] * direction[0]
+        denom += normal[1] * direction[1]
+        denom += normal[2] * direction[2]
+        t = normal[0] * origin[0]
+        t += normal[1] * origin[1]
+        t += normal[2] * origin[2]
+        np.subtract(offset, t, out=t)
+        # a ray in (or all but in) the plane gives inf or NaN, and fails every test of accept()
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            t /= denom
+        return t
+
+    @staticmethod
+    def accept(t, corner, alpha_axis, beta_axis, box_lo, box_hi, origin, direction):
+        """``t`` where it is past ``T_MIN`` and the point there inside the quad
+        and its padded box, else ``inf``: the second half of :meth:`exact_t`."""
+        with np.errstate(invalid="ignore", over="ignore"):
+            ok = t > T_MIN
+            axes = []
+            for k in range(3):
+                p = t * direction[k]
+                p += origin[k]
+                ok &= p >= box_lo[k]
+                ok &= p <= box_hi[k]
+                p -= corner[k]  # now q = p - corner
+                axes.append(p)
+            qx, qy, qz = axes
+            for axis in (alpha_axis, beta_axis):
+                c = qx * axis[0]
+                c += qy * axis[1]
+                c += qz * axis[2]
+                ok &= c >= 0
+                ok &= c <= 1
         return np.where(ok, t, np.inf)
+
+    def t_pairs(self, idx, origin, direction, time=None):
+        """:meth:`exact_t` pair by pair, the point-in-quad half only where the
+        plane is met past ``T_MIN`` (elsewhere it would answer ``inf`` too).
+        A ray leaving a surface meets that surface's plane at ``t`` ~ 0: in the
+        Cornell box ~0.9 of the ~2.2 quads per ray that brute force's filter
+        keeps (~1.0 of ~1.7 for shadow rays) are its own quad's plane."""
+        rows = self.field_rows
+        t = self.plane_t(rows[3:6].take(idx, axis=1), rows[6].take(idx), origin, direction)
+        past = np.flatnonzero(t > T_MIN)  # NaN compares false
+        if past.size == t.size:
+            return self.accept(t, *self._accept_fields(idx), origin, direction)
+        out = np.full(t.shape, np.inf, dtype=t.dtype)
+        if past.size:
+            out[past] = self.accept(t.take(past), *self._accept_fields(idx.take(past)), origin.take(past, axis=1),
+                                    direction.take(past, axis=1))
+        return out
+
+    def _accept_fields(self, idx):
+        corner, _, _, alpha_axis, beta_axis, box_lo, box_hi = self.gather(idx)
+        return corner, alpha_axis, beta_axis, box_lo, box_hi
 
     def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = origin + t * direction
