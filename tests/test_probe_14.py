@@ -356,11 +356,6 @@ def test_a_mirrored_mesh_keeps_its_front_side_and_its_normals_agree(tmp_path):
     assert (np.einsum("ij,ij->j", face, t["vertex_normal"][0]) > 0).all()
 
 
-@pytest.mark.xfail(strict=True, reason="wavefront/shapes/quad.py (another helper's file): Quad.world() maps "
-                                       "u and v through a mirroring transform, so cross(u, v) turns to the back "
-                                       "and a mirrored emissive quad goes dark. Fix: in Quad.world(), when "
-                                       "det(transform) < 0 return (corner, v, u) (or corner + u, -u, v), and drop "
-                                       "box_quads' own swap, which would then undo it")
 def test_a_mirrored_quad_keeps_its_front_side():
     quad = dict(corner=(-1, -1, -2), u=(2, 0, 0), v=(0, 2, 0), material="lamp")
     front = seen(lamp_scene(quads=[Quad(**quad)]))

@@ -45,12 +45,17 @@ class Quad:
             check_world_flat(self, np.stack(self.world()), "quad")
 
     def world(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``corner, u, v`` in world space, each of shape (3,)."""
+        """``corner, u, v`` in world space, each of shape (3,).  A mirroring
+        transform swaps ``u`` and ``v``, so that the front side (``cross(u,
+        v)``) stays the mirror image of the object's front side (pbrt's
+        ``transformSwapsHandedness``), as a mirrored triangle's and box's do;
+        the quad's ``(a, b)`` coordinates swap with them."""
         q, u, v = (np.asarray(x, dtype=np.float64) for x in (self.corner, self.u, self.v))
         if self.transform is None:
             return q, u, v
-        return (self.transform.points(q[:, None])[:, 0], self.transform.vectors(u[:, None])[:, 0],
-                self.transform.vectors(v[:, None])[:, 0])
+        q, u, v = (self.transform.points(q[:, None])[:, 0], self.transform.vectors(u[:, None])[:, 0],
+                   self.transform.vectors(v[:, None])[:, 0])
+        return (q, v, u) if np.linalg.det(self.transform.array[:3, :3]) < 0 else (q, u, v)
 
 
 def _cross(a, b):
@@ -119,11 +124,10 @@ def box_quads(lo, hi, material, transform: Transform | None = None) -> list[Quad
         ((x0, y1, z1), dx, neg(dz)),  # top (+y)
         ((x0, y0, z0), dx, dz),  # bottom (-y)
     ]
-    # A mirroring transform (negative determinant) turns every cross(u, v)
-    # inwards: swapping u and v keeps the faces outward in world space (an
-    # emissive box lights its outside, a box of fog is entered from outside).
-    if isinstance(transform, Transform) and np.linalg.det(transform.array[:3, :3]) < 0:
-        faces = [(corner, v, u) for corner, u, v in faces]
+    # A mirroring transform (negative determinant) would turn every cross(u, v)
+    # inwards; each face's Quad.world() swaps u and v then, so the faces stay
+    # outward in world space (an emissive box lights its outside, a box of fog
+    # is entered from outside).
     return [Quad(corner, u, v, material, transform) for corner, u, v in faces]
 
 
