@@ -37,6 +37,7 @@ from .geometry import Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
 from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, boundary_volume, contains
+from .sampling import SAMPLERS
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
 from .textures import TextureTable, is_texture
@@ -140,10 +141,15 @@ class RenderSettings:
                                      sampling by MIS (power heuristic)
     ``russian_roulette``   depth 5   ``path``: :class:`RussianRoulette`
                                      (``{depth: 5}``), or ``false``
+    ``sampler``            sobol     where the uniforms come from: ``sobol``
+                                     (each pair of a path a scrambled Sobol'
+                                     net over the pixel's samples, pbrt-v4's
+                                     PaddedSobolSampler) or ``independent``
     =====================  ========  ===========================================
 
-    With ``light_sampling: false`` and ``russian_roulette: false`` the path
-    integrator is the book's estimator, bit for bit.  Whitted ignores both.
+    With ``light_sampling: false``, ``russian_roulette: false`` and
+    ``sampler: independent`` the path integrator is the book's estimator, bit
+    for bit.  Whitted ignores the first two.
     """
 
     samples_per_pixel: int = 100
@@ -153,6 +159,7 @@ class RenderSettings:
     precision: str = "auto"
     light_sampling: bool = True
     russian_roulette: RussianRoulette | None = field(default_factory=RussianRoulette)
+    sampler: str = "sobol"
 
     def __post_init__(self):
         set_field = object.__setattr__
@@ -170,6 +177,7 @@ class RenderSettings:
             fail(self, "light_sampling", f"expected true or false, got {describe(self.light_sampling)}")
         set_field(self, "light_sampling", bool(self.light_sampling))
         set_field(self, "russian_roulette", _roulette_field(self, self.russian_roulette))
+        set_field(self, "sampler", string(self, self.sampler, "sampler", SAMPLERS))
 
     @property
     def depth(self) -> int:
