@@ -312,11 +312,12 @@ class Scene:
         return dataclasses.replace(self, **changes)
 
     def with_overrides(self, *, width=None, height=None, samples_per_pixel=None,
-                       max_depth=None, seed=None) -> Scene:
+                       max_depth=None, seed=None, sampler=None) -> Scene:
         """Command-line style overrides; ``width`` alone keeps the aspect ratio.
 
         The result is validated as any scene is: a bad value raises
-        :class:`SceneError` naming ``width``, ``height`` or ``render.<field>``.
+        :class:`SceneError` naming ``width``, ``height`` or ``render.<field>``
+        (``sampler``: ``"sobol"`` or ``"independent"``).
         """
         w = integer(self, width, "width", low=1) if width is not None else None
         h = integer(self, height, "height", low=1) if height is not None else None
@@ -325,7 +326,7 @@ class Scene:
         if h is not None and w is None:
             w = max(1, round(h * self.width / self.height))
         settings = {key: value for key, value in (("samples_per_pixel", samples_per_pixel),
-                                                  ("max_depth", max_depth), ("seed", seed))
+                                                  ("max_depth", max_depth), ("seed", seed), ("sampler", sampler))
                     if value is not None}
         try:
             render = dataclasses.replace(self.render, **settings)
