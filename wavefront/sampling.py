@@ -19,6 +19,12 @@ The hash is SplitMix64's finaliser (Steele, Lea & Flood 2014; Stafford's
 once per dimension.  ``tests/test_sampling.py`` checks uniformity and
 independence with chi-square tests, and checks that a weak hash fails them.
 
+That is ``render.sampler: independent``.  The default, ``sobol``, keeps the
+same structure (a pure function of key, pixel, sample index and pair) but
+makes the numbers of one pixel's samples a scrambled low-discrepancy net in
+each pair instead of independent: see "the low-discrepancy sampler" below
+and :class:`Sampler`, which every draw of a render goes through.
+
 Samplers take their uniforms as arguments and own no state, which is what lets
 the tests feed them controlled numbers.
 """
@@ -220,7 +226,7 @@ def _sobol_dimension_1_reversed_tables() -> np.ndarray:
 
 
 _SOBOL_1_REVERSED = _sobol_dimension_1_reversed_tables()
-_BYTE, _S8U, _S16U, _S24U = _U32(0xFF), _U32(8), _U32(16), _U32(24)
+_BYTE, _S8U, _S16U = _U32(0xFF), _U32(8), _U32(16)
 # Bit reversal without tables: swap bytes, then nibbles, pairs and bits
 # within each byte.  In place on uint32 this measured 1.4-3x faster than
 # four 256-entry (or two 65536-entry) table lookups, whose int64 index
