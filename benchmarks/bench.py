@@ -58,8 +58,10 @@ equal_error  noise per second: the Cornell box and scenes/cornell_spheres.yaml
            as float16 .npy), so differences between the two material models
            do not count as noise; the efficiency ratio
            ``(time_wavefront * MSE_wavefront) / (time_mitsuba * MSE_mitsuba)``
-           (median of runs; below 1, wavefront is ahead), and wavefront with
-           light sampling on against off (both off: the book estimator).
+           (median of runs; below 1, wavefront is ahead) against Mitsuba's
+           default ``independent`` sampler and its stratified ``multijitter``
+           and ``ldsampler``; wavefront's ``sobol`` (default) against its
+           ``independent`` sampler; light sampling on against off.
 distributed  the final scene on Dask LocalClusters of 1 and 2 workers against
            the plain local render (1 and 2 processes), and Dask's overhead per
            task (cluster start-up excluded, one warm-up render each).
@@ -424,7 +426,9 @@ EQUAL_MITSUBA_CHILD = textwrap.dedent("""
     from mitsuba_scene import mitsuba_scene_dict
     import wavefront
     scene = wavefront.load_scene(args["scene"]).with_overrides(**args["overrides"])
-    mscene = mi.load_dict(mitsuba_scene_dict(scene, mi, workdir=tempfile.mkdtemp()))
+    spec = mitsuba_scene_dict(scene, mi, workdir=tempfile.mkdtemp())
+    spec["sensor"]["sampler"]["type"] = args.get("sampler", "independent")
+    mscene = mi.load_dict(spec)
     spp = scene.render.samples_per_pixel
     np.array(mi.render(mscene, spp=min(spp, 16), seed=10**6))  # warm-up: JIT compilation is not timed
     # at most 1024 spp per call: one llvm_ad_rgb wavefront of 128x128x16384 samples fails to compile
@@ -440,6 +444,11 @@ EQUAL_MITSUBA_CHILD = textwrap.dedent("""
 EQUAL_ERROR_SCENES = (("Cornell box", "scenes/cornell_box.yaml"), ("Cornell spheres", "scenes/cornell_spheres.yaml"))
 EQUAL_ERROR_SIZE = 128
 EQUAL_ERROR_SPP = (4, 16, 64)
+# Mitsuba's stratified samplers, beside its default ``independent`` (the
+# floor's baseline): ``multijitter`` (correlated multi-jittered, Kensler 2013)
+# and ``ldsampler`` (a scrambled (0, 2)-sequence per pair of dimensions, the
+# closest to wavefront's sobol).  All share Mitsuba's one converged reference.
+MITSUBA_STRATIFIED = ("multijitter", "ldsampler")
 # Reference sample counts: far above the largest measured count (64), so a
 # reference's own error adds at most ~1/32 (wavefront) or ~1/256 (Mitsuba) to a
 # measured MSE.  cornell_spheres' wavefront reference has 2048 (time on the
@@ -488,12 +497,17 @@ def _reference(label, scene, renderer, variant, env, folder):
     REFERENCES.mkdir(parents=True, exist_ok=True)
     spp = REFERENCE_SPP_OF_SCENE.get(scene, {}).get(renderer, REFERENCE_SPP[renderer])
     stem = Path(scene).stem
-    path = REFERENCES / f"{stem}_{EQUAL_ERROR_SIZE}_{renderer}{'_' + variant if renderer == 'mitsuba' else ''}_{spp}spp.npy"
+    # wavefront's with its sobol sampler: at 4096 spp its own error is far below
+    # the sobol images' it measures (independent numbers left ~3e-5, a quarter of
+    # the Cornell box's MSE at 64 spp)
+    kind = variant if renderer == "mitsuba" else "sobol"
+    path = REFERENCES / f"{stem}_{EQUAL_ERROR_SIZE}_{renderer}_{kind}_{spp}spp.npy"
     if not path.exists():
         out = folder / f"ref_{stem}_{renderer}.npy"
         overrides = {"width": EQUAL_ERROR_SIZE, "height": EQUAL_ERROR_SIZE, "samples_per_pixel": spp, "seed": 77}
         if renderer == "wavefront":
-            child(EQUAL_WAVEFRONT_CHILD, {"scene": scene, "overrides": overrides, "out": str(out)})
+            child(EQUAL_WAVEFRONT_CHILD, {"scene": scene, "overrides": overrides, "settings": {"sampler": "sobol"},
+                                          "out": str(out)})
         else:
             child(EQUAL_MITSUBA_CHILD, {"scene": scene, "overrides": overrides, "out": str(out), "variant": variant,
                                         "bench_dir": str(ROOT / "benchmarks")}, env)
@@ -507,50 +521,84 @@ def section_equal_error(runs):
 
     variant, env, note = mitsuba_setup()
     folder = Path(tempfile.mkdtemp(prefix="wavefront-equal-error-"))
-    rows, nee_rows, data = [], [], {}
+    rows, sampler_rows, stratified_rows, nee_rows, data = [], [], [], [], {}
+    # wavefront's default (sobol), its independent sampler, and light sampling
+    # off (the same sampler: the light-sampling gain alone)
+    configurations = (("wavefront", {"sampler": "sobol"}), ("independent", {"sampler": "independent"}),
+                      ("book", {"light_sampling": False, "russian_roulette": False, "sampler": "sobol"}))
+    mitsuba_samplers = ("independent", *MITSUBA_STRATIFIED)
+
+    def efficiency(a, b):
+        """Median over runs of (time x MSE) of ``a`` over ``b``'s."""
+        return statistics.median(x[0] * x[1] / (y[0] * y[1]) for x, y in zip(a, b))
+
     for label, scene in EQUAL_ERROR_SCENES:
         ref_wf = _reference(label, scene, "wavefront", variant, env, folder)
         ref_mi = _reference(label, scene, "mitsuba", variant, env, folder) if variant else None
         data[label] = {}
         for spp in EQUAL_ERROR_SPP:
-            results = {"wavefront": [], "book": [], "mitsuba": []}
+            results = {k: [] for k, _ in configurations}
+            results.update({f"mitsuba {s}": [] for s in mitsuba_samplers})
             for run in range(runs):
                 overrides = {"width": EQUAL_ERROR_SIZE, "height": EQUAL_ERROR_SIZE, "samples_per_pixel": spp,
                              "seed": 1000 + run}
-                for key, settings in (("wavefront", {}), ("book", {"light_sampling": False,
-                                                                   "russian_roulette": False})):
+                for key, settings in configurations:
                     out = folder / f"{key}.npy"
                     w = child(EQUAL_WAVEFRONT_CHILD, {"scene": scene, "overrides": overrides, "settings": settings,
                                                       "out": str(out)})
                     results[key].append((w["elapsed"], _mse(out, ref_wf)))
                 if variant:
-                    out = folder / "mitsuba.npy"
-                    m = child(EQUAL_MITSUBA_CHILD, {"scene": scene, "overrides": overrides, "out": str(out),
-                                                    "variant": variant, "bench_dir": str(ROOT / "benchmarks")}, env)
-                    results["mitsuba"].append((m["elapsed"], _mse(out, ref_mi)))
+                    for sampler in mitsuba_samplers:
+                        out = folder / "mitsuba.npy"
+                        m = child(EQUAL_MITSUBA_CHILD, {"scene": scene, "overrides": overrides, "out": str(out),
+                                                        "variant": variant, "sampler": sampler,
+                                                        "bench_dir": str(ROOT / "benchmarks")}, env)
+                        results[f"mitsuba {sampler}"].append((m["elapsed"], _mse(out, ref_mi)))
             med = {k: (statistics.median(t for t, _ in v), statistics.median(e for _, e in v))
                    for k, v in results.items() if v}
             data[label][spp] = {k: {"time": t, "mse": e} for k, (t, e) in med.items()}
-            (tw, ew), (tb, eb) = med["wavefront"], med["book"]
+            (tw, ew), (ti, ei), (tb, eb) = med["wavefront"], med["independent"], med["book"]
+            gain = efficiency(results["independent"], results["wavefront"])
+            data[label][spp]["sobol_gain"] = gain
+            sampler_rows.append([label, spp, f"{tw:.2f} s", f"{ew:.3g}", f"{ti:.2f} s", f"{ei:.3g}",
+                                 f"{ei / ew:.2f}x", f"{gain:.2f}x"])
             if variant:
-                tm, em = med["mitsuba"]
-                ratio = statistics.median(a[0] * a[1] / (b[0] * b[1])
-                                          for a, b in zip(results["wavefront"], results["mitsuba"]))
+                tm, em = med["mitsuba independent"]
+                ratio = efficiency(results["wavefront"], results["mitsuba independent"])
+                ratio_independent = efficiency(results["independent"], results["mitsuba independent"])
                 data[label][spp]["ratio"] = ratio
-                rows.append([label, spp, f"{tw:.2f} s", f"{ew:.3g}", f"{tm:.2f} s", f"{em:.3g}", f"{ratio:.2f}"])
-            nee = statistics.median(b[0] * b[1] / (a[0] * a[1]) for a, b in zip(results["wavefront"], results["book"]))
+                data[label][spp]["ratio_independent"] = ratio_independent
+                rows.append([label, spp, f"{tw:.2f} s", f"{ew:.3g}", f"{tm:.2f} s", f"{em:.3g}", f"{ratio:.2f}",
+                             f"{ratio_independent:.2f}"])
+                cells, best = [], None
+                for sampler in MITSUBA_STRATIFIED:
+                    ts, es = med[f"mitsuba {sampler}"]
+                    r = efficiency(results["wavefront"], results[f"mitsuba {sampler}"])
+                    data[label][spp][f"ratio_{sampler}"] = r
+                    cells += [f"{ts:.2f} s", f"{es:.3g}", f"{r:.2f}"]
+                    best = r if best is None else max(best, r)
+                stratified_rows.append([label, spp, f"{ew:.3g}", *cells])
+            nee = efficiency(results["book"], results["wavefront"])
             data[label][spp]["light_sampling_gain"] = nee
             nee_rows.append([label, spp, f"{tw:.2f} s", f"{ew:.3g}", f"{tb:.2f} s", f"{eb:.3g}", f"{nee:.1f}x"])
     text = ""
     if variant:
-        text += table(["scene (128x128)", "spp", "wavefront time", "wavefront MSE", "Mitsuba time", "Mitsuba MSE",
-                       "efficiency ratio (wf / Mitsuba)"], rows) + "\n\n"
-    text += table(["scene (128x128)", "spp", "light sampling on: time", "MSE", "off (book estimator): time", "MSE",
+        text += table(["scene (128x128)", "spp", "wavefront (sobol) time", "MSE", "Mitsuba (independent) time",
+                       "MSE", "efficiency ratio (wf / Mitsuba)", "same, wf independent"], rows) + "\n\n"
+        header = ["scene (128x128)", "spp", "wavefront (sobol) MSE"]
+        for sampler in MITSUBA_STRATIFIED:
+            header += [f"Mitsuba {sampler} time", "MSE", f"ratio (wf / {sampler})"]
+        text += table(header, stratified_rows) + "\n\n"
+    text += table(["scene (128x128)", "spp", "sobol: time", "MSE", "independent: time", "MSE",
+                   "MSE ratio (independent / sobol)", "efficiency gain of sobol"], sampler_rows) + "\n\n"
+    text += table(["scene (128x128)", "spp", "light sampling on: time", "MSE", "off (and roulette off): time", "MSE",
                    "efficiency gain of light sampling"], nee_rows)
-    return (f"Baseline: {note}, its path integrator (max_depth 50, roulette from depth 5). wavefront: "
-            "light sampling and roulette on (its defaults) on all cores; the book estimator is both off. "
-            f"Medians of {runs} runs, each a fresh process with its own seed; wall times of the render (Mitsuba's "
-            "JIT compilation excluded by a warm-up, wavefront's scene compile included). MSE against each "
+    return (f"Baseline: {note}, its path integrator (max_depth 50, roulette from depth 5), with its default "
+            f"sampler (independent; the floor's ratio) and its stratified ones ({', '.join(MITSUBA_STRATIFIED)}). "
+            "wavefront: light sampling and roulette on (its defaults) on all cores, with its default sampler "
+            "(sobol) and with sampler: independent; light sampling off means roulette off too (same sampler, "
+            f"sobol). Medians of {runs} runs, each a fresh process with its own seed; wall times of the render "
+            "(Mitsuba's JIT compilation excluded by a warm-up, wavefront's scene compile included). MSE against each "
             f"renderer's own reference (wavefront {REFERENCE_SPP['wavefront']} spp, 2048 for cornell_spheres; "
             f"Mitsuba {REFERENCE_SPP['mitsuba']} spp; cached in benchmarks/references/); efficiency ratio = "
             "(time x MSE) of wavefront over "

@@ -45,7 +45,7 @@ STAGES = (
     ("media: shadow-ray transmittance", "path.py", "shadow_transmittance"),
     ("textures: albedo at hits", "path.py", "surface_albedo"),
     ("Russian roulette", "path.py", "russian_roulette"),
-    ("random numbers at bounces", "sampling.py", "uniform_pairs_at"),
+    ("random numbers (Sampler.pairs, every draw)", "sampling.py", "pairs"),
     ("compaction (PathBatch.take)", "batch.py", "take"),
 )
 

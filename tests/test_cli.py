@@ -103,6 +103,7 @@ def test_bad_scene_exits_2_with_one_message_and_no_output(tmp_path, text, needle
     (("--spp", "1_000"), "--spp"),
     (("--workers", str(2**31)), "--workers"),
     (("--frames", str(2**31)), "--frames"),
+    (("--sampler", "halton"), "--sampler"),
 ])
 def test_bad_arguments_exit_2(tmp_path, args, needle):
     r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.png", *args)
@@ -216,3 +217,14 @@ def test_an_existing_checkpoint_is_not_overwritten_without_resume(tmp_path):
     r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "b.npy", "--checkpoint", ck, "--resume", ck,
             *SMALL, "-q")
     assert r.returncode == 0, r.stderr
+
+
+def test_sampler_flag_overrides_the_scene_and_is_recorded(tmp_path):
+    images = {}
+    for sampler in ("sobol", "independent"):
+        out = tmp_path / f"{sampler}.png"
+        r = run("render", SCENES / "three_spheres.yaml", "-o", out, *SMALL, "--sampler", sampler, "--workers", 1, "-q")
+        assert r.returncode == 0, r.stderr
+        assert read_png_metadata(out)["wavefront.sampler"] == sampler
+        images[sampler] = out.read_bytes()
+    assert images["sobol"] != images["independent"]

@@ -44,6 +44,13 @@ def test_fingerprint_changes_with_any_sphere_of_a_big_scene():
     assert scene_fingerprint(base) == scene_fingerprint(base.replace(spheres=list(spheres)))
 
 
+def test_fingerprint_covers_the_sampler():
+    """A checkpoint of a sobol render cannot be resumed as an independent one (its samples would mix)."""
+    scene = Scene(spheres=[Sphere((0, 0, -5), 1, "m")], materials={"m": Lambertian()})
+    assert scene.render.sampler == "sobol"
+    assert scene_fingerprint(scene) != scene_fingerprint(scene.with_overrides(sampler="independent"))
+
+
 def test_round_trip_and_refusals(tmp_path):
     scene = tiny_scene()
     film = Film(4, 3)

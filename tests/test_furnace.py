@@ -53,10 +53,9 @@ def test_negative_control_biased_roulette_fails_the_furnace(monkeypatch):
     """Roulette that forgets to divide by the survival probability darkens the furnace."""
     import wavefront.path
 
-    def biased(live, absorbed, start_depth):
+    def biased(sampler, live, absorbed, start_depth):
         rows = np.flatnonzero(~absorbed & (live.depth + 1 >= start_depth))
-        u = wavefront.path.uniform_pairs_at(live.state.take(rows),
-                                            wavefront.path.light_choice_dimension(live.depth.take(rows)))[1]
+        u = sampler.pairs(live.state.take(rows), wavefront.path.light_choice_dimension(live.depth.take(rows)))[1]
         absorbed[rows[u >= 0.95]] = True
         return absorbed
 

@@ -1,11 +1,12 @@
 """Next-event estimation with MIS and Russian roulette in the path integrator.
 
 The estimator changes, the picture must not: images with light sampling and
-roulette on are compared with the book estimator (both off) by a per-pixel
+roulette on are compared with the book estimator (both off, independent
+numbers) by a per-pixel
 z-test with a Bonferroni correction (as ``test_reference.py``), on the
 Cornell box, a scene lit by a small sphere lamp and a glass ball under a quad
 light; a deliberately wrong MIS weight must be rejected by the same test.
-With both off the image is the book estimator's bit for bit; with them on it
+With both off (and ``sampler: independent``) the image is the book estimator's bit for bit; with them on it
 is still independent of chunk size and worker count.
 """
 
@@ -33,7 +34,13 @@ def with_settings(scene, **settings):
 
 
 def book(scene):
-    return with_settings(scene, light_sampling=False, russian_roulette=False)
+    """The book's estimator: no light sampling, no roulette, independent
+    numbers.  (With the default sobol sampler its rare hits of a small lamp
+    are stratified too, and then 16 renders of a block can all miss the lamp
+    at once, which this test's across-render variance cannot see: seeds
+    100-115 do so on sphere_lamp's far floor.  The light-sampling side keeps
+    the default sampler, so the comparison also crosses samplers.)"""
+    return with_settings(scene, light_sampling=False, russian_roulette=False, sampler="independent")
 
 
 # The test compares blocks of BLOCK x BLOCK pixels (their mean is as

@@ -293,12 +293,13 @@ def test_fog_resting_on_a_floor_is_not_left_through_the_floor():
     target = np.array([[347.0], [0.0], [377.0]]) + rng.uniform(-40, 40, (3, n)) * [[1], [0], [1]]
     origin = target + rng.uniform(-60, 60, (3, n)) * [[1], [0], [1]] + [[0], [600], [0]]
     direction = (target - origin) / np.linalg.norm(target - origin, axis=0)
-    live = wavefront.path.camera_paths(compiled, scene.camera.frame(4, 4), np.uint64(1),
+    sampler = wavefront.path.render_sampler(compiled, np.uint64(1))
+    live = wavefront.path.camera_paths(compiled, scene.camera.frame(4, 4), sampler,
                                        wavefront.units.Job([wavefront.units.Unit(0, 0, 0, 4, 4, 0, 1)], 4, 1), 0, 1)
     live = live.take(np.zeros(n, dtype=np.int64))
     live.origin, live.direction, live.media_mask = origin, direction, np.zeros(n, dtype=np.uint64)
     hits = compiled.shapes.intersect(origin, direction)
-    surface, hits, in_medium, _ = wavefront.path.travel_media(compiled, live, hits)
+    surface, hits, in_medium, _ = wavefront.path.travel_media(compiled, sampler, live, hits)
     assert len(in_medium) == 0 and len(surface) == n and (hits.primitive_idx == 0).all()
     inside = wavefront.media.contains(scene.media[0], (347, 1, 377))
     assert inside and (surface.media_mask == 1).all()
@@ -405,7 +406,7 @@ def test_capped_hit_queries_in_media_change_no_pixel(name, monkeypatch):
              "cornell_smoke": lambda: load_scene(SCENES / "cornell_smoke.yaml").with_overrides(
                  width=12, height=12, samples_per_pixel=4)}[name]()
     capped = render(scene, workers=1)
-    monkeypatch.setattr(wavefront.path, "intersect_in_media", lambda cs, live: (
+    monkeypatch.setattr(wavefront.path, "intersect_in_media", lambda cs, sampler, live: (
         cs.shapes.intersect(live.origin, live.direction, time=live.time), None))
     np.testing.assert_array_equal(render(scene, workers=1), capped)
 

@@ -194,7 +194,13 @@ def test_moving_light_is_sampled_where_it_is():
         images[nee] = render(scene, workers=1).astype(np.float64)
     floor = images[True][10:, :], images[False][10:, :]  # the lower rows see the lit floor only
     assert floor[0].mean() > 0.01
-    assert abs(floor[0].mean() - floor[1].mean()) < 0.05 * floor[1].mean()
+    # Distinct pixels are independent, so the sum of their differences over
+    # the root of the sum of their squares is a standard normal z if the two
+    # agree.  (A fixed 5 % of the mean was about one standard error of the
+    # material-sampling image, which finds the small lamp by chance: 3 seeds
+    # in 8 failed it, with either sampler.)
+    d = (floor[0] - floor[1])[..., 0]  # grey: the channels are equal
+    assert abs(d.sum() / np.sqrt((d**2).sum())) < 4.0
     # a light sampled where it is at time 0 only would light the floor's left half alone
     left, right = floor[0][:, :12].mean(), floor[0][:, 12:].mean()
     assert 0.7 < left / right < 1.4

@@ -11,11 +11,13 @@ from wavefront.units import PASS_SAMPLES, plan_units
 from .test_furnace import SCENES
 
 
-@pytest.fixture(scope="module")
-def scene():
+@pytest.fixture(scope="module", params=["sobol", "independent"])
+def scene(request):
     # 70x40 is not a multiple of the tile size and 20 spp is not a multiple
-    # of the pass size, so edge tiles and short passes are exercised.
-    return load_scene(SCENES / "three_spheres.yaml").with_overrides(width=70, height=40, samples_per_pixel=20)
+    # of the pass size, so edge tiles and short passes are exercised (and
+    # sobol's permutation walks cycles: 20 is no power of two).
+    return load_scene(SCENES / "three_spheres.yaml").with_overrides(width=70, height=40, samples_per_pixel=20,
+                                                                     sampler=request.param)
 
 
 @pytest.fixture(scope="module")

@@ -3,14 +3,33 @@
 Samplers take their uniforms as arguments, so each test feeds them numbers
 from the project's own hash (what renders use) and checks the distribution of
 what comes out against its exact law.
+
+The sobol sampler (``render.sampler``'s default) gets exact tests of what
+makes it low-discrepancy (a pixel's points of each pair are a (0, m, 2)-net;
+the permutation is a bijection; the unscrambled sequence is the textbook one),
+chi-square tests that its points are uniform and that two pairs of a path are
+independent across pixels, a within-pixel test that each pair is permuted on
+its own (padding), each with a negative control, and render tests: furnaces
+exact, sobol and independent images equal in expectation, a biased sampler
+rejected.
 """
+
+import dataclasses
+import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, strategies as st
 from scipy import stats
 
+from wavefront import (Camera, Emissive, Lambertian, Quad, RenderSettings, Scene, Solid, Sphere, load_scene,
+                       render)
 from wavefront.materials import scatter_lambertian
-from wavefront.sampling import mix64, path_state, random_in_unit_disk, random_unit_vector, scene_key, uniform_pairs
+from wavefront.sampling import (LIGHT_PAIRS, MEDIUM_PAIRS, SAMPLERS, TIME_PAIR, Sampler, _reverse_bits_int,
+                                _sobol_dimension_1_columns, _to_unit, mix64, pair_seeds, path_state,
+                                permutation_element, random_in_unit_disk, random_unit_vector, reverse_bits,
+                                scene_key, scrambled_sobol, sobol_reversed, uniform_pairs)
 from wavefront.vecmath import normalize
 
 N = 200_000
@@ -132,3 +151,324 @@ def test_negative_control_linear_radius_disk_is_rejected():
 @pytest.mark.parametrize("seed", [0, 1, 2**63 - 1])
 def test_scene_key_differs_between_seeds(seed):
     assert scene_key(seed) != scene_key(seed + 1 if seed < 2**63 - 1 else 0)
+
+
+# -- the low-discrepancy sampler (render.sampler: sobol) ---------------------------------
+
+# pairs from every block: camera, bounces, time, light, media
+PAIRS = st.sampled_from([0, 1, 2, 3, 9, 52, TIME_PAIR, LIGHT_PAIRS, LIGHT_PAIRS + 1, LIGHT_PAIRS + 19,
+                         MEDIUM_PAIRS, MEDIUM_PAIRS + 256 * 3 + 2]) | st.integers(0, (1 << 26) - 1)
+SEEDS = st.integers(0, 2**63 - 1)
+PIXELS = st.integers(0, (1 << 28) - 1)
+DTYPES = st.sampled_from([np.float64, np.float32])
+
+
+def pixel_points(sampler, pixel, pair, dtype=np.float64):
+    """The ``(2, spp)`` uniforms of pair ``pair`` over every sample of one pixel."""
+    spp = sampler.samples_per_pixel
+    pixels = np.full(spp, pixel, dtype=np.int64)
+    state = sampler.start(pixels, pixels.astype(np.uint64) * np.uint64(spp) + np.arange(spp, dtype=np.uint64))
+    return sampler.pairs(state, pair, dtype).astype(np.float64)
+
+
+def box_counts(u, m, a):
+    """Points per elementary box of 2^a columns by 2^(m - a) rows (area 2^-m)."""
+    x = np.floor(u[0] * (1 << a)).astype(np.int64)
+    y = np.floor(u[1] * (1 << (m - a))).astype(np.int64)
+    return np.bincount(x * (1 << (m - a)) + y, minlength=1 << m)
+
+
+def is_02_net(u, m):
+    """Every elementary box of area 2^-m, of every shape, holds exactly one of the 2^m points."""
+    return all((box_counts(u, m, a) == 1).all() for a in range(m + 1))
+
+
+@given(seed=SEEDS, pixel=PIXELS, pair=PAIRS, m=st.integers(0, 10), dtype=DTYPES)
+def test_sobol_points_of_one_pixel_are_a_02_net(seed, pixel, pair, m, dtype):
+    """With spp = 2^m, a pixel's points of any pair are a (0, m, 2)-net (exact)."""
+    u = pixel_points(Sampler(scene_key(seed), 1 << m, "sobol"), pixel, pair, dtype)
+    assert (u >= 0).all() and (u < 1).all()
+    assert is_02_net(u, m)
+
+
+@given(seed=SEEDS, pixel=PIXELS, pair=PAIRS, spp=st.integers(3, 3000).filter(lambda n: n & (n - 1)))
+def test_sobol_with_a_count_that_is_no_power_of_two_stays_a_permuted_sequence(seed, pixel, pair, spp):
+    """spp between 2^m and 2^(m+1): the pixel's points are the sequence's
+    first spp points (distinct), so every box of area 2^-m holds one or two."""
+    u = pixel_points(Sampler(scene_key(seed), spp, "sobol"), pixel, pair)
+    m = spp.bit_length() - 1
+    assert np.unique(u[0]).size == spp and np.unique(u[1]).size == spp
+    for a in range(m + 1):
+        assert set(np.unique(box_counts(u, m, a))) <= {1, 2}
+
+
+def test_negative_control_independent_points_are_no_net():
+    sampler = Sampler(scene_key(1), 16, "independent")
+    assert not any(is_02_net(pixel_points(sampler, pixel, 0), 4) for pixel in range(20))
+
+
+@given(length=st.integers(1, 5000), p=st.integers(0, 2**32 - 1))
+def test_permutation_element_is_a_bijection(length, p):
+    i = np.arange(length, dtype=np.uint32)
+    j = permutation_element(i, length, np.full(length, p, dtype=np.uint32))
+    assert j.dtype == np.uint32 and np.array_equal(np.sort(j), i)
+
+
+def test_permutation_element_differs_between_seeds():
+    i = np.arange(64, dtype=np.uint32)
+    images = {tuple(permutation_element(i, 64, np.full(64, p, dtype=np.uint32))) for p in range(50)}
+    assert len(images) == 50
+
+
+@given(x=st.lists(st.integers(0, 2**32 - 1), min_size=1, max_size=50))
+def test_reverse_bits(x):
+    v = np.array(x, dtype=np.uint32)
+    assert reverse_bits(v).tolist() == [_reverse_bits_int(a) for a in x]
+
+
+def test_unscrambled_sobol_points_are_the_textbook_ones():
+    """Dimension 0 is van der Corput's sequence, dimension 1 Pascal's matrix
+    mod 2 (pbrt-v4's SobolMatrices32 columns 0x80000000, 0xc0000000, 0xa0000000, 0xf0000000, ...)."""
+    assert _sobol_dimension_1_columns()[:8] == [0x80000000, 0xC0000000, 0xA0000000, 0xF0000000,
+                                                0x88000000, 0xCC000000, 0xAA000000, 0xFF000000]
+    points = reverse_bits(sobol_reversed(np.arange(8, dtype=np.uint32))).astype(np.float64) * 2.0**-32
+    np.testing.assert_array_equal(points[0], [0, 0.5, 0.25, 0.75, 0.125, 0.625, 0.375, 0.875])
+    np.testing.assert_array_equal(points[1], [0, 0.5, 0.75, 0.25, 0.625, 0.125, 0.375, 0.875])
+    # byte tables: an index with bits in every byte is the XOR of its columns
+    j = 0x00A5_3C81
+    expected = 0
+    for bit in range(32):
+        if j >> bit & 1:
+            expected ^= _sobol_dimension_1_columns()[bit]
+    assert sobol_reversed(np.array([j], dtype=np.uint32))[1, 0] == _reverse_bits_int(expected)
+
+
+def test_unit_conversion_never_reaches_one_and_keeps_its_bits():
+    top = np.full((2, 1), 0xFFFFFFFF, dtype=np.uint32)
+    assert _to_unit(top, np.float64).max() == 1 - 2.0**-32
+    assert _to_unit(top, np.float32).max() == np.float32(1 - 2.0**-24)
+    # the low bits a float keeps are as uniform as the high ones: bits 17-24 in float32, 25-32 in float64
+    for dtype, bits in ((np.float32, 24), (np.float64, 32)):
+        v = one_sample_per_pixel(Sampler(scene_key(5), 16, "sobol"), 5, n=N, dtype=dtype)
+        assert v.dtype == dtype
+        low = (v.astype(np.float64) * 2.0**bits).astype(np.int64) & 255
+        assert chi2_pvalue(np.bincount(low.ravel(), minlength=256)) > ACCEPT
+
+
+def one_sample_per_pixel(sampler, pair, n=N, dtype=np.float64):
+    """Pair ``pair`` of one sample (index ``pixel % spp``) of each of ``n``
+    pixels: points of different pixels are independent, so chi-square applies."""
+    pixel = np.arange(n, dtype=np.int64)
+    sample_id = pixel.astype(np.uint64) * np.uint64(sampler.samples_per_pixel) + (
+        pixel % sampler.samples_per_pixel).astype(np.uint64)
+    return sampler.pairs(sampler.start(pixel, sample_id), pair, dtype)
+
+
+@pytest.mark.parametrize("spp", [1, 16, 100])
+@pytest.mark.parametrize("pair", [0, 5, LIGHT_PAIRS + 3])
+def test_sobol_uniforms_are_uniform_over_pixels(spp, pair):
+    u0, u1 = one_sample_per_pixel(Sampler(scene_key(7), spp, "sobol"), pair)
+    assert u0.min() >= 0 and u1.max() < 1
+    assert chi2_pvalue(np.histogram(u0, bins=100, range=(0, 1))[0]) > ACCEPT
+    assert chi2_pvalue(np.histogram(u1, bins=100, range=(0, 1))[0]) > ACCEPT
+    assert chi2_pvalue(pair_histogram(u0, u1)) > ACCEPT  # jointly uniform in the square
+
+
+def test_negative_control_unscrambled_sobol_is_rejected():
+    """The bare sequence (no scramble, no shift) puts sample 0 of every pixel at the origin."""
+    spp, n = 16, N
+    pixel = np.arange(n)
+    j = permutation_element((pixel % spp).astype(np.uint32), spp, np.zeros(n, dtype=np.uint32))
+    bare = reverse_bits(sobol_reversed(j)).astype(np.float64) * 2.0**-32
+    assert chi2_pvalue(pair_histogram(bare[0], bare[1])) < REJECT
+
+
+@pytest.mark.parametrize("spp", [16, 100])
+def test_sobol_pairs_of_one_path_are_independent(spp):
+    """Across pixels (one sample each), two pairs of the same path are
+    independent: joint histograms of their coordinates."""
+    sampler = Sampler(scene_key(9), spp, "sobol")
+    a = one_sample_per_pixel(sampler, 3)
+    b = one_sample_per_pixel(sampler, LIGHT_PAIRS + 4)
+    c = one_sample_per_pixel(sampler, TIME_PAIR)
+    for x, y in ((a[0], b[0]), (a[1], b[1]), (a[0], b[1]), (a[1], c[0]), (b[0], c[0])):
+        assert chi2_pvalue(pair_histogram(x, y)) > ACCEPT
+
+
+def test_negative_control_one_seed_for_every_pair_is_rejected():
+    """Without a hash per pair (pair 0's seeds for all), two pairs of a path coincide."""
+    spp, n = 16, N
+    sampler = Sampler(scene_key(9), spp, "sobol")
+    pixel = np.arange(n)
+    state = sampler.start(pixel, pixel.astype(np.uint64) * np.uint64(spp) + (pixel % spp).astype(np.uint64))
+    low = np.uint64(spp - 1)
+    seeds = pair_seeds(state & ~low, 0)
+    j = permutation_element((state & low).astype(np.uint32), spp, seeds.permutation)
+    a = b = scrambled_sobol(j, seeds, 4)  # what pairs 3 and LIGHT_PAIRS + 4 would both get
+    assert chi2_pvalue(pair_histogram(a[0], b[0])) < REJECT
+
+
+def within_pixel_statistic(x, y, pixels, spp, bins=4):
+    """Mean over pixels of sum over the bins x bins cells of (count - expected)^2,
+    where a pixel's samples are binned by ``x`` and ``y``."""
+    a = np.minimum((x * bins).astype(np.int64), bins - 1)
+    b = np.minimum((y * bins).astype(np.int64), bins - 1)
+    counts = np.bincount(np.repeat(np.arange(pixels), spp) * bins * bins + a * bins + b,
+                         minlength=pixels * bins * bins).reshape(pixels, bins * bins)
+    return ((counts - spp / bins**2) ** 2).sum(axis=1).mean()
+
+
+def random_correspondence(spp, bins=4):
+    """The statistic's mean if a pixel's samples met pair two's points in a
+    uniformly random order: each cell hypergeometric (spp, spp/bins, spp/bins)."""
+    k = spp // bins
+    return bins * bins * k * (k / spp) * (1 - k / spp) * (spp - k) / (spp - 1)
+
+
+def all_samples(sampler, pixels):
+    spp = sampler.samples_per_pixel
+    pixel = np.repeat(np.arange(pixels), spp)
+    return sampler.start(pixel, pixel.astype(np.uint64) * np.uint64(spp) + np.tile(np.arange(spp, dtype=np.uint64),
+                                                                                    pixels))
+
+
+def test_sobol_pairs_are_padded_within_a_pixel():
+    """Each pair permutes the pixel's points on its own, so which samples
+    share a box in one pair says little about the next pair (pbrt's padding).
+    Kensler's hash is no uniformly random permutation: measured 1.00-1.05x
+    the random order's statistic at 64 spp (its structure shows at small
+    counts: at 4 spp pairs of samples stay paired across pairs)."""
+    spp, pixels = 64, 3000
+    sampler = Sampler(scene_key(13), spp, "sobol")
+    state = all_samples(sampler, pixels)
+    for d1, d2 in ((2, 3), (0, LIGHT_PAIRS + 1), (LIGHT_PAIRS, MEDIUM_PAIRS)):
+        u, v = sampler.pairs(state, d1), sampler.pairs(state, d2)
+        for x in (0, 1):
+            for y in (0, 1):
+                assert within_pixel_statistic(u[x], v[y], pixels, spp) < 1.25 * random_correspondence(spp)
+
+
+def test_negative_control_one_permutation_for_every_pair_is_rejected():
+    """Own scrambles but pair 2's permutation for pair 3 too: a sample gets
+    the same point of both nets, and the boxes it shares, it shares again."""
+    spp, pixels = 64, 3000
+    sampler = Sampler(scene_key(13), spp, "sobol")
+    state = all_samples(sampler, pixels)
+    low = np.uint64(spp - 1)
+    index, pixel_hash = (state & low).astype(np.uint32), state & ~low
+    s2, s3 = pair_seeds(pixel_hash, 2), pair_seeds(pixel_hash, 3)
+    j = permutation_element(index, spp, s2.permutation)
+    u, v = scrambled_sobol(j, s2, 6), scrambled_sobol(j, s3, 6)
+    assert within_pixel_statistic(u[0], v[0], pixels, spp) > 5 * random_correspondence(spp)
+
+
+def test_sampler_kinds():
+    assert SAMPLERS == ("sobol", "independent")
+    with pytest.raises(ValueError):
+        Sampler(scene_key(0), 4, "halton")
+
+
+def test_independent_sampler_is_the_hash_of_the_sample_id():
+    """sampler: independent draws exactly what path_state/uniform_pairs give
+    (the numbers every image before the sobol sampler was made of)."""
+    sampler = Sampler(scene_key(3), 10, "independent")
+    pixel = np.arange(1000) // 10
+    sample_id = np.arange(1000, dtype=np.uint64)
+    state = sampler.start(pixel, sample_id)
+    np.testing.assert_array_equal(state, path_state(scene_key(3), sample_id))
+    np.testing.assert_array_equal(sampler.pairs(state, 5), uniform_pairs(state, 5))
+    np.testing.assert_array_equal(sampler.pairs(state, np.full(1000, 5)), uniform_pairs(state, 5))
+
+
+# -- rendering with the sobol sampler -----------------------------------------------------
+
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def with_sampler(scene, sampler, **settings):
+    return scene.replace(render=dataclasses.replace(scene.render, sampler=sampler, **settings))
+
+
+@pytest.mark.parametrize("name", ["furnace_lambertian", "furnace_mirror", "furnace_glass"])
+@pytest.mark.parametrize("spp", [5, 16])
+def test_white_furnace_is_exact_under_sobol(name, spp):
+    scene = with_sampler(load_scene(SCENES / f"{name}.yaml"), "sobol", russian_roulette=False)
+    np.testing.assert_allclose(render(scene.with_overrides(samples_per_pixel=spp), workers=1), 1.0, atol=1e-6)
+
+
+def cornell_box():
+    """The Cornell box, small: a quad light, walls, boxes, every decision of a path."""
+    return load_scene(SCENES / "cornell_box.yaml").with_overrides(width=40, height=40, samples_per_pixel=16)
+
+
+def quad_lit():
+    """A floor and a ball under a large, close quad light: where the light
+    sample falls matters, so a biased sampler shows (on the Cornell box
+    u ** 1.1 moves the image by about one standard error of this test)."""
+    materials = {"floor": Lambertian((0.7, 0.7, 0.7)), "ball": Lambertian((0.3, 0.5, 0.7)),
+                 "lamp": Emissive((4, 4, 4))}
+    quads = [Quad((-2, 0, 2), (4, 0, 0), (0, 0, -4), "floor"),
+             Quad((-0.8, 0.7, 0.8), (0, 0, -1.6), (1.6, 0, 0), "lamp")]  # cross(u, v) = -y: shines down
+    return Scene(spheres=[Sphere((0.5, 0.3, 0.3), 0.3, "ball")], quads=quads, materials=materials,
+                 camera=Camera(look_from=(0, 3.0, 2.5), look_at=(0, 0, 0), vfov=50),
+                 background=Solid((0.1, 0.1, 0.1)), width=40, height=40,
+                 render=RenderSettings(samples_per_pixel=16, max_depth=6))
+
+
+LIT_SCENES = {"cornell_box": cornell_box, "quad_lit": quad_lit}
+
+
+BLOCK = 5
+
+
+def difference_z(a, b):
+    """z-scores of ``a - b`` (two renders of one scene with unrelated seeds):
+    the whole image's, then per BLOCK x BLOCK block.
+
+    Both are unbiased for the same pixel means, so each pixel's difference
+    has mean zero, and differences of distinct pixels are independent
+    (distinct pixels hash to unrelated numbers): the sum of n of them over
+    the root of the sum of their squares is a standard normal z.  (A pixel's
+    own sample variance would not do: under sobol its samples are not
+    independent, and it overstates the variance of their mean.)
+    """
+    d = (a.astype(np.float64) - b.astype(np.float64)).sum(axis=-1)  # channels of a pixel are not independent
+    h, w = d.shape
+    blocks = d[:h - h % BLOCK, :w - w % BLOCK].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK)
+    block_z = blocks.sum(axis=(1, 3)) / np.sqrt((blocks**2).sum(axis=(1, 3)) + 1e-300)
+    return d.sum() / np.sqrt((d**2).sum()), block_z
+
+
+def differ(a, b, alpha=1e-3):
+    """Two-sided test of the whole image and of every block (Bonferroni)."""
+    z, block_z = difference_z(a, b)
+    return (abs(z) > stats.norm.isf(alpha / 2)
+            or np.abs(block_z).max() > stats.norm.isf(alpha / (2 * block_z.size))), z, np.abs(block_z).max()
+
+
+def mean_image(scene, seeds):
+    return np.mean([render(scene.with_overrides(seed=s), workers=1).astype(np.float64) for s in seeds], axis=0)
+
+
+@functools.cache
+def independent_image(name, spp=16):
+    return mean_image(with_sampler(LIT_SCENES[name](), "independent").with_overrides(samples_per_pixel=spp),
+                      range(900, 904))
+
+
+@pytest.mark.parametrize("name, spp", [("cornell_box", 16), ("quad_lit", 16), ("quad_lit", 12)])
+def test_sobol_and_independent_images_are_equal_in_expectation(name, spp):
+    scene = with_sampler(LIT_SCENES[name](), "sobol").with_overrides(samples_per_pixel=spp)
+    bad, z, worst = differ(mean_image(scene, range(300, 304)), independent_image(name, spp))
+    assert not bad, f"z = {z:.2f}, largest block |z| = {worst:.2f}"
+
+
+def test_negative_control_biased_sampler_is_rejected(monkeypatch):
+    """Every uniform raised to the power 1.1 (still in [0, 1), slightly towards 0)."""
+    reference = independent_image("quad_lit")  # before the sampler goes wrong
+    pairs = Sampler.pairs
+    monkeypatch.setattr(Sampler, "pairs", lambda self, state, pair, dtype=np.float64: pairs(self, state, pair,
+                                                                                             dtype) ** 1.1)
+    bad, z, worst = differ(mean_image(with_sampler(quad_lit(), "sobol"), range(300, 304)), reference)
+    assert bad, f"z = {z:.2f}, largest block |z| = {worst:.2f}"

@@ -88,6 +88,8 @@ CASES = [
     ("render.samples_per_pixel", 0, "render.samples_per_pixel", ">= 1"),
     ("render.integrator", "bidir", "render.integrator", "unknown value"),
     ("render.seed", -1, "render.seed", ">= 0"),
+    ("render.sampler", "halton", "render.sampler", "unknown value"),
+    ("render.sampler", 3, "render.sampler", "expected a string"),
     ("background.type", "hdri", "background.type", "unknown value"),
     ("background.color", [1, 1, 1], "background.color", "unknown key"),
     ("spheres", {"a": 1}, "spheres", "expected a list"),

@@ -12,8 +12,8 @@ class PathBatch:
     """Live paths of a wavefront, one column (or element) per path.
 
     ``slot`` says where the path's radiance goes in the job's per-sample
-    buffer, ``state`` is its random-number hash state (see
-    :mod:`wavefront.sampling`) and ``depth`` counts the segments traced so
+    buffer, ``state`` is what its sampler draws its numbers from (see
+    :class:`wavefront.sampling.Sampler`) and ``depth`` counts the segments traced so
     far; paths of different depths share a batch once it has been refilled.
     """
 

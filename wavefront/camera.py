@@ -151,8 +151,9 @@ class CameraFrame:
         ----------
         pixel : ndarray of shape (N,)
             ``row * width + column``.
-        u : ndarray of shape (4, N)
-            Uniforms: pixel jitter x, y and lens sample u, v.
+        u : ndarray of shape (4, N), or (2, N) without defocus
+            Uniforms: pixel jitter x, y and lens sample u, v (read only
+            with defocus).
 
         Returns
         -------

@@ -91,6 +91,13 @@ def _seed(text: str) -> int:
     return _integer(text, 0, _limits().MAX_SEED, "a non-negative integer")
 
 
+def _sampler(text: str) -> str:
+    choices = _limits().SAMPLERS
+    if text not in choices:
+        raise argparse.ArgumentTypeError(f"expected {' or '.join(choices)}, got {text!r}")
+    return text
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -150,6 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--spp", type=_spp, help="samples per pixel")
     r.add_argument("--max-depth", type=_depth, help="path segments (path) or recursion depth (whitted)")
     r.add_argument("--seed", type=_seed, help="random seed; the same seed gives the same image")
+    r.add_argument("--sampler", type=_sampler, metavar="{sobol,independent}",
+                   help="where the random numbers come from (default: the scene's render.sampler, else sobol)")
     r.add_argument("--workers", type=_workers,
                    help="processes (default: all cores, fewer if --memory needs it); the image does not change")
     r.add_argument("--memory", type=_memory,
@@ -414,6 +423,7 @@ def _render(args, signals: _Signals, started: float) -> int:
                 return 128 + signals.stop
             metadata = {"Software": f"wavefront {_version()}", "wavefront.scene": scene.name,
                         "wavefront.seed": s.seed, "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
+                        "wavefront.sampler": scene.render.sampler,
                         "wavefront.partial": "yes" if s.partial else "no",
                         "wavefront.units": f"{s.units_done}/{s.units_total}"}
             if args.frames is not None:
@@ -458,7 +468,7 @@ def _refuse_unless_loading_fits(path: str, memory: int) -> None:
 
 
 _FLAG_OF = {"width": "--width", "height": "--height", "render.samples_per_pixel": "--spp",
-            "render.max_depth": "--max-depth", "render.seed": "--seed"}
+            "render.max_depth": "--max-depth", "render.seed": "--seed", "render.sampler": "--sampler"}
 
 
 def _with_flags(scene, args):
@@ -468,10 +478,10 @@ def _with_flags(scene, args):
 
     try:
         return scene.with_overrides(width=args.width, height=args.height, samples_per_pixel=args.spp,
-                                    max_depth=args.max_depth, seed=args.seed)
+                                    max_depth=args.max_depth, seed=args.seed, sampler=args.sampler)
     except SceneError as e:
         given = {"--width": args.width, "--height": args.height, "--spp": args.spp, "--max-depth": args.max_depth,
-                 "--seed": args.seed}
+                 "--seed": args.seed, "--sampler": args.sampler}
         flags = [_FLAG_OF[e.path]] if e.path in _FLAG_OF else ["--width", "--height"]  # else: the pixel count
         named = " ".join(f"{f} {given[f]}" for f in flags if given[f] is not None)
         raise SceneError(args.scene, named or "image", e.problem) from None
@@ -545,7 +555,7 @@ def summary_line(scene, s, output: str, timing: Timing | None = None) -> str:
         f"{rate(s.segments) / 1e6:.2f} M path segments/s"
         + (f" (+ {rate(s.shadow_rays) / 1e6:.2f} M shadow rays/s)" if s.shadow_rays else ""),
         f"peak memory {s.peak_memory / 2**20:.0f} MiB",
-        f"seed {s.seed}",
+        f"seed {s.seed}" + ("" if scene.render.sampler == "sobol" else f" ({scene.render.sampler} sampler)"),
         f"{s.workers} worker{'s' if s.workers != 1 else ''}",
     ]
     if s.dropped:

@@ -1,7 +1,8 @@
 """The integrators by name: a scene's ``render.integrator`` picks its trace function here.
 
 Each trace function takes ``(compiled_scene, job, key, capacity, stats,
-should_stop)`` and returns the job's per-sample radiance ``(3, job.size)``.
+should_stop)`` and returns the job's per-sample radiance ``(3, job.size)``;
+it draws its numbers from ``path.render_sampler(compiled_scene, key)``.
 A new integrator is one module and one entry below.
 """
 

@@ -58,9 +58,8 @@ from .batch import PathBatch, ShadowBatch
 from .units import Job
 from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
 from .media import ISOTROPIC_PDF, cross, current_medium, medium_albedo, transmittance
-from .sampling import (CROSSINGS_PER_SEGMENT, TIME_PAIR, bounce_dimension, light_choice_dimension,
-                       light_point_dimension, medium_dimension, path_state, random_unit_vector, uniform_pairs,
-                       uniform_pairs_at)
+from .sampling import (CROSSINGS_PER_SEGMENT, TIME_PAIR, Sampler, bounce_dimension, light_choice_dimension,
+                       light_point_dimension, medium_dimension, random_unit_vector)
 from .geometry import T_MIN
 from .scene import CompiledScene
 from .shapes import Hits
@@ -115,7 +114,13 @@ class TraceStats:
     shadow_rays: int = 0  # next-event estimation's shadow rays (not counted in segments)
 
 
-def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
+def render_sampler(cs: CompiledScene, key) -> Sampler:
+    """The render's source of uniforms (``render.sampler``) under hash key ``key``."""
+    settings = cs.scene.render
+    return Sampler(key, settings.samples_per_pixel, settings.sampler)
+
+
+def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: int, stop: int,
                  pixel_centres: bool = False) -> PathBatch:
     """Stage 1: new paths for the job's slots ``start:stop``.
 
@@ -123,8 +128,10 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
     jittering it (classic Whitted with one sample per pixel).
     """
     pixel, sample_id = job.samples(start, stop)
-    state = path_state(key, sample_id)
-    u = np.concatenate((uniform_pairs(state, 0), uniform_pairs(state, 1)))
+    state = sampler.start(pixel, sample_id)
+    u = sampler.pairs(state, 0)  # pixel jitter
+    if frame.has_defocus:  # a pinhole never reads the lens pair: not drawing it changes no number
+        u = np.concatenate((u, sampler.pairs(state, 1)))
     if pixel_centres:
         u[:2] = 0.5
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
@@ -132,7 +139,7 @@ def camera_paths(cs: CompiledScene, frame, key, job: Job, start: int, stop: int,
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
-    time = uniform_pairs(state, TIME_PAIR)[0] if cs.shapes.moving else None
+    time = sampler.pairs(state, TIME_PAIR)[0] if cs.shapes.moving else None
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -201,11 +208,12 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     scene, frame, radiance, stats = begin_trace(cs, job, stats)
     kernels = kernels_present(cs.materials)
     settings = scene.render
+    sampler = render_sampler(cs, key)
     emitters = cs.emitters if settings.light_sampling and cs.emitters is not None and len(cs.emitters) else None
     roulette = settings.russian_roulette
-    live, next_slot = camera_paths(cs, frame, key, job, 0, 0), 0
+    live, next_slot = camera_paths(cs, frame, sampler, job, 0, 0), 0
     while True:
-        live, next_slot = refill(cs, frame, key, job, live, next_slot, capacity)
+        live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity)
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
@@ -213,10 +221,10 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         if cs.media is None:
             hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
         else:
-            hits, first = intersect_in_media(cs, live)
-            live, hits, in_medium, point = travel_media(cs, live, hits, first)
+            hits, first = intersect_in_media(cs, sampler, live)
+            live, hits, in_medium, point = travel_media(cs, sampler, live, hits, first)
             if len(in_medium):
-                in_medium, shadows = scatter_in_media(cs, in_medium, point, emitters)
+                in_medium, shadows = scatter_in_media(cs, sampler, in_medium, point, emitters)
         live, surface = escaped(cs, live, hits, radiance)
         if len(live):
             absorbed = emitted(cs, live, surface, radiance, emitters)
@@ -224,16 +232,16 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
-                shadows = ShadowBatch.concat(shadows, sample_lights(cs, emitters, live, surface, diffuse, absorbed,
-                                                                    settings.depth, albedo))
+                shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
+                                                                    absorbed, settings.depth, albedo))
         if shadows is not None:
             trace_shadow_rays(cs, shadows, radiance, stats)
         if len(live):
-            direction, absorbed = scatter_hits(cs, kernels, live, surface, absorbed, albedo)
+            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo)
             if diffuse is not None:
                 record_sampling(cs, live, surface, diffuse, direction)
             if roulette is not None:
-                absorbed = russian_roulette(live, absorbed, roulette.depth)
+                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth)
             if cs.media is not None:
                 cross_interfaces(cs, live, surface, direction, absorbed)
             live = advance(live, surface, direction, absorbed, settings.depth)
@@ -242,14 +250,14 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     return radiance
 
 
-def refill(cs: CompiledScene, frame, key, job: Job, live: PathBatch, next_slot: int, capacity: int):
+def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch, next_slot: int, capacity: int):
     """Stage 1: free slots take camera rays of the job's next samples, once
     enough are free (so a long tail of a few deep paths never costs a
     near-empty NumPy call per bounce).  Returns the batch and the next slot."""
     free = capacity - len(live)
     if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
         stop = min(job.size, next_slot + free)
-        live = PathBatch.concat(live, camera_paths(cs, frame, key, job, next_slot, stop))
+        live = PathBatch.concat(live, camera_paths(cs, frame, sampler, job, next_slot, stop))
         next_slot = stop
     return live, next_slot
 
@@ -346,7 +354,7 @@ def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
     return np.isin(kind, (table.code("lambertian"), table.code("phong")))
 
 
-def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, diffuse, absorbed,
+def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch, surface, diffuse, absorbed,
                   max_depth: int, albedo=None) -> ShadowBatch:
     """Stage 5: one light sample per diffuse vertex, as a shadow ray.
 
@@ -357,8 +365,8 @@ def sample_lights(cs: CompiledScene, emitters, live: PathBatch, surface, diffuse
     """
     rows = np.flatnonzero(diffuse & ~absorbed & (live.depth + 1 < max_depth))
     state, depth = live.state.take(rows), live.depth.take(rows)
-    u_point = uniform_pairs_at(state, light_point_dimension(depth))
-    u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
+    u_point = sampler.pairs(state, light_point_dimension(depth))
+    u_choice = sampler.pairs(state, light_choice_dimension(depth))[0]
     point = gather(surface.point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(point, u_choice, u_point, time)
@@ -390,14 +398,14 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     scatter_add(radiance, shadows.slot.take(visible), contribution)
 
 
-def scatter_hits(cs: CompiledScene, kernels, live: PathBatch, surface, absorbed, albedo=None):
+def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None):
     """Stage 7: hits are routed by material kind, one kernel per kind present;
     throughput is multiplied by the attenuation (``albedo (3, N)``: the hits'
     textured albedo, if any).  Returns the new directions and the ``absorbed`` mask."""
     table = cs.materials
     material, normal, front_face = surface.material_idx, surface.normal, surface.front_face
     kind = table.kind.take(material)
-    u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
+    u = sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     if len(kernels) == 1 and not (table.kind == table.code("emissive")).any():
         # a lone kind and no emitters: no routing, no gathers
         att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
@@ -439,7 +447,7 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
         live.eta_scale[through] *= eta * eta
 
 
-def russian_roulette(live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
+def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
     """Stage 8: paths that have traced at least ``start_depth`` segments go on
     with probability ``q = min(max(throughput) * eta^2, 0.95)`` and divide
     their throughput by ``q``; the others end.  Returns ``absorbed``."""
@@ -448,7 +456,7 @@ def russian_roulette(live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
         return absorbed
     survival = np.minimum(gather(live.throughput, rows).max(axis=0) * live.eta_scale.take(rows),
                           ROULETTE_MAX_SURVIVAL)
-    u = uniform_pairs_at(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
+    u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
     survive = u < survival
     absorbed[rows.take(np.flatnonzero(~survive))] = True
     kept = rows.take(np.flatnonzero(survive))
@@ -561,7 +569,7 @@ def first_boundaries(media, origin, direction) -> Hits:
     return boundary_hits(media, o, direction, np.full(origin.shape[1], np.inf, dtype=o.dtype))
 
 
-def intersect_in_media(cs: CompiledScene, live: PathBatch):
+def intersect_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch):
     """Stage 2 in a scene with media: the paths' hits, asking the
     intersector no further than needed (fewer BVH nodes to walk).
 
@@ -586,7 +594,7 @@ def intersect_in_media(cs: CompiledScene, live: PathBatch):
     rows = np.flatnonzero((medium >= 0) & (first.primitive_idx >= 0))
     if rows.size == 0:
         return cs.shapes.intersect(live.origin, live.direction, time=live.time), first
-    u = uniform_pairs_at(live.state.take(rows), medium_dimension(live.depth.take(rows), 0))[0]
+    u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), 0))[0]
     with np.errstate(divide="ignore", invalid="ignore"):
         t0 = -np.log1p(-u) / media.density.take(medium.take(rows))
         # the cap: past t0 by far more than rounding to the render's precision
@@ -605,7 +613,7 @@ def intersect_in_media(cs: CompiledScene, live: PathBatch):
     return hits, first
 
 
-def travel_media(cs: CompiledScene, live: PathBatch, hits, first: Hits | None = None):
+def travel_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, hits, first: Hits | None = None):
     """Stage 2b (scenes with media): free flight between each path's vertex
     and its hit.
 
@@ -633,7 +641,7 @@ def travel_media(cs: CompiledScene, live: PathBatch, hits, first: Hits | None = 
         inside = np.flatnonzero(medium >= 0)
         if inside.size:
             rows = row.take(inside)
-            u = uniform_pairs_at(live.state.take(rows), medium_dimension(live.depth.take(rows), piece))[0]
+            u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), piece))[0]
             with np.errstate(divide="ignore"):  # density 0: an infinite flight, as if the medium were not there
                 t = start.take(inside) - np.log1p(-u) / media.density.take(medium.take(inside))
             near = np.flatnonzero(t < stop.take(inside))
@@ -672,7 +680,8 @@ def shadow_transmittance(cs: CompiledScene, origin, direction, t_max, mask) -> n
     return fraction
 
 
-def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters) -> tuple[PathBatch, ShadowBatch | None]:
+def scatter_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, point,
+                     emitters) -> tuple[PathBatch, ShadowBatch | None]:
     """Stages 5-9 for vertices in media: a light sample (its shadow ray
     attenuated by transmittance), then the isotropic phase function's sample
     (uniform on the sphere, pdf ``1 / (4 pi)``, so the throughput is
@@ -685,14 +694,14 @@ def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters) -> tup
     absorbed = albedo.max(axis=0) <= 0.0
     shadows = None
     if emitters is not None:
-        shadows = sample_lights_in_media(cs, emitters, live, point, albedo, absorbed, settings.depth)
-    u = uniform_pairs_at(live.state, bounce_dimension(live.depth), cs.dtype)
+        shadows = sample_lights_in_media(cs, sampler, emitters, live, point, albedo, absorbed, settings.depth)
+    u = sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     direction = random_unit_vector(u[0], u[1])
     live.throughput *= albedo
     live.bsdf_pdf = np.full(len(live), ISOTROPIC_PDF)
     live.specular = np.zeros(len(live), dtype=bool)
     if settings.russian_roulette is not None:
-        absorbed = russian_roulette(live, absorbed, settings.russian_roulette.depth)
+        absorbed = russian_roulette(sampler, live, absorbed, settings.russian_roulette.depth)
     live.origin = point
     live.direction = direction
     live.depth += 1
@@ -700,7 +709,7 @@ def scatter_in_media(cs: CompiledScene, live: PathBatch, point, emitters) -> tup
     return (live if alive.all() else live.take(np.flatnonzero(alive))), shadows
 
 
-def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, albedo, absorbed,
+def sample_lights_in_media(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch, point, albedo, absorbed,
                            max_depth: int) -> ShadowBatch:
     """One light sample per medium vertex, as :func:`sample_lights` does for
     surfaces, with the isotropic phase function ``1 / (4 pi)`` as both the
@@ -709,8 +718,8 @@ def sample_lights_in_media(cs: CompiledScene, emitters, live: PathBatch, point, 
     transmittance comes with the shadow ray)."""
     rows = np.flatnonzero(~absorbed & (live.depth + 1 < max_depth))
     state, depth = live.state.take(rows), live.depth.take(rows)
-    u_point = uniform_pairs_at(state, light_point_dimension(depth))
-    u_choice = uniform_pairs_at(state, light_choice_dimension(depth))[0]
+    u_point = sampler.pairs(state, light_point_dimension(depth))
+    u_choice = sampler.pairs(state, light_choice_dimension(depth))[0]
     origin = gather(point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(origin, u_choice, u_point, time)

@@ -37,6 +37,7 @@ from .geometry import Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
 from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, boundary_volume, contains
+from .sampling import SAMPLERS
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
 from .textures import TextureTable, is_texture
@@ -140,10 +141,15 @@ class RenderSettings:
                                      sampling by MIS (power heuristic)
     ``russian_roulette``   depth 5   ``path``: :class:`RussianRoulette`
                                      (``{depth: 5}``), or ``false``
+    ``sampler``            sobol     where the uniforms come from: ``sobol``
+                                     (each pair of a path a scrambled Sobol'
+                                     net over the pixel's samples, pbrt-v4's
+                                     PaddedSobolSampler) or ``independent``
     =====================  ========  ===========================================
 
-    With ``light_sampling: false`` and ``russian_roulette: false`` the path
-    integrator is the book's estimator, bit for bit.  Whitted ignores both.
+    With ``light_sampling: false``, ``russian_roulette: false`` and
+    ``sampler: independent`` the path integrator is the book's estimator, bit
+    for bit.  Whitted ignores the first two.
     """
 
     samples_per_pixel: int = 100
@@ -153,6 +159,7 @@ class RenderSettings:
     precision: str = "auto"
     light_sampling: bool = True
     russian_roulette: RussianRoulette | None = field(default_factory=RussianRoulette)
+    sampler: str = "sobol"
 
     def __post_init__(self):
         set_field = object.__setattr__
@@ -170,6 +177,7 @@ class RenderSettings:
             fail(self, "light_sampling", f"expected true or false, got {describe(self.light_sampling)}")
         set_field(self, "light_sampling", bool(self.light_sampling))
         set_field(self, "russian_roulette", _roulette_field(self, self.russian_roulette))
+        set_field(self, "sampler", string(self, self.sampler, "sampler", SAMPLERS))
 
     @property
     def depth(self) -> int:
@@ -304,11 +312,12 @@ class Scene:
         return dataclasses.replace(self, **changes)
 
     def with_overrides(self, *, width=None, height=None, samples_per_pixel=None,
-                       max_depth=None, seed=None) -> Scene:
+                       max_depth=None, seed=None, sampler=None) -> Scene:
         """Command-line style overrides; ``width`` alone keeps the aspect ratio.
 
         The result is validated as any scene is: a bad value raises
-        :class:`SceneError` naming ``width``, ``height`` or ``render.<field>``.
+        :class:`SceneError` naming ``width``, ``height`` or ``render.<field>``
+        (``sampler``: ``"sobol"`` or ``"independent"``).
         """
         w = integer(self, width, "width", low=1) if width is not None else None
         h = integer(self, height, "height", low=1) if height is not None else None
@@ -317,7 +326,7 @@ class Scene:
         if h is not None and w is None:
             w = max(1, round(h * self.width / self.height))
         settings = {key: value for key, value in (("samples_per_pixel", samples_per_pixel),
-                                                  ("max_depth", max_depth), ("seed", seed))
+                                                  ("max_depth", max_depth), ("seed", seed), ("sampler", sampler))
                     if value is not None}
         try:
             render = dataclasses.replace(self.render, **settings)

@@ -31,7 +31,7 @@ import numpy as np
 
 from .batch import PathBatch
 from .units import Job
-from .path import TraceStats, begin_trace, camera_paths
+from .path import TraceStats, begin_trace, camera_paths, render_sampler
 from .scene import CompiledScene
 from .vecmath import dot, normalize, reflect, refract, schlick
 
@@ -73,6 +73,7 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
     trace returns early with incomplete radiance, which the caller discards.
     """
     scene, frame, radiance, stats = begin_trace(cs, job, stats)
+    sampler = render_sampler(cs, key)
     max_depth = scene.render.depth
     t = cs.materials
     emissive, dielectric = t.code("emissive"), t.code("dielectric")
@@ -84,7 +85,7 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
     chunk = max(1, capacity // CHUNK_FRACTION)
     for start in range(0, job.size, chunk):
         # one sample per pixel goes through the pixel centre, as in the classic ray tracer
-        live = camera_paths(cs, frame, key, job, start, min(job.size, start + chunk),
+        live = camera_paths(cs, frame, sampler, job, start, min(job.size, start + chunk),
                             pixel_centres=scene.render.samples_per_pixel == 1)
         while len(live):
             if should_stop is not None and should_stop():
