@@ -1015,13 +1015,14 @@ def _flags(overrides: dict) -> list[str]:
     return [x for k, v in overrides.items() for x in (names[k], str(v))]
 
 
-def _wavefront_command(scene: str, overrides: dict, out: str) -> dict:
+def _wavefront_command(scene: str, overrides: dict, out: str, extra=()) -> dict:
     """``wavefront render`` as a user runs it (stderr is a pipe: no progress bar); wall time and the
-    render time of its summary."""
+    render time of its summary.  ``extra``: more flags."""
     import time
 
     env, cwd = user_env()
-    argv = [str(Path(PYTHON).parent / "wavefront"), "render", str(ROOT / scene), "-o", out, *_flags(overrides)]
+    argv = [str(Path(PYTHON).parent / "wavefront"), "render", str(ROOT / scene), "-o", out, *_flags(overrides),
+            *extra]
     start = time.perf_counter()
     proc = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env, timeout=7200)
     wall = time.perf_counter() - start
@@ -1065,9 +1066,13 @@ def section_whole_process(runs, w3=None):
             _wavefront_command(scene, overrides, png)
             if variant:
                 _mitsuba_command(spec, variant, env, exr)
-        results = {"wavefront": [], "in process": [], "mitsuba": []}
+        # the default sampler (sobol) spends time per sample on less noise; the independent one is
+        # the estimator Mitsuba's default sampler matches, sample for sample (W1 and W2 only)
+        results = {"wavefront": [], "independent": [], "in process": [], "mitsuba": []}
         for _ in range(n):
             results["wavefront"].append(_wavefront_command(scene, overrides, png))
+            if not once:
+                results["independent"].append(_wavefront_command(scene, overrides, png, ("--sampler", "independent")))
             if variant:
                 results["mitsuba"].append(_mitsuba_command(spec, variant, env, exr))
             results["in process"].append(child(WAVEFRONT_CHILD, {"scene": scene, "overrides": overrides},
@@ -1085,17 +1090,23 @@ def section_whole_process(runs, w3=None):
             whole = statistics.median(w["wall"] / m["wall"] for w, m in zip(results["wavefront"], results["mitsuba"]))
             inner = statistics.median(w["elapsed"] / m["steady"]
                                       for w, m in zip(results["in process"], results["mitsuba"]))
+            plain = (statistics.median(w["wall"] / m["wall"] for w, m in zip(results["independent"],
+                                                                              results["mitsuba"]))
+                     if results["independent"] else None)
             entry.update(mitsuba_wall=m_wall, mitsuba_steady=m_steady, mitsuba_start=m_start,
+                         ratio_whole_independent=plain, runs_independent=results["independent"],
                          mitsuba_first_render=med(results["mitsuba"], "render"), ratio_whole=whole,
                          ratio_in_process=inner, runs_wavefront=results["wavefront"],
                          runs_mitsuba=results["mitsuba"], runs_in_process=results["in process"])
-            rows.append([label, f"{w_wall:.2f} s", f"{m_wall:.2f} s", f"**{whole:.2f}x**",
+            independent = (f"{med(results['independent'], 'wall'):.2f} s ({plain:.2f}x)" if plain is not None
+                           else "–")
+            rows.append([label, f"{w_wall:.2f} s", f"{m_wall:.2f} s", f"**{whole:.2f}x**", independent,
                          f"{w_in:.2f} s", f"{m_steady:.2f} s", f"{inner:.2f}x", n])
         else:
-            rows.append([label, f"{w_wall:.2f} s", "–", "–", f"{w_in:.2f} s", "–", "–", n])
+            rows.append([label, f"{w_wall:.2f} s", "–", "–", "–", f"{w_in:.2f} s", "–", "–", n])
         data[label] = entry
     text = table(["workload", "wavefront CLI, launch to PNG", "Mitsuba, launch to EXR", "ratio",
-                  "wavefront in process", "Mitsuba steady-state render", "ratio", "runs"], rows)
+                  "CLI with --sampler independent (ratio)", "wavefront in process", "Mitsuba steady-state render", "ratio", "runs"], rows)
     text += (f"\n\nTimes are medians; each ratio is the median of the runs' own ratios (a wavefront run "
              f"against the Mitsuba run beside it). Load average (1 min) {load_before:.1f} before, "
              f"{os.getloadavg()[0]:.1f} after, on {os.cpu_count()} cores.")
