@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .materials import MaterialTable
-from .sampling import random_unit_vector
+from .sampling import cos_sin_2pi, random_unit_vector
 from .shapes import Primitives, QuadSet, SphereSet, TriangleSet
 from .shapes.sphere import object_normal, sphere_uv
 from .textures import TextureTable
@@ -380,10 +380,10 @@ def sample_sphere(center, radius, reference, u):
         sin_max = np.sqrt(sin2_max)
         cos_alpha = sin2_theta / sin_max + cos_theta * np.sqrt(np.maximum(0.0, 1.0 - sin2_theta / sin2_max))
     sin_alpha = np.sqrt(np.maximum(0.0, 1.0 - cos_alpha * cos_alpha))
-    phi = 2.0 * np.pi * u[1]
+    cos_phi, sin_phi = cos_sin_2pi(u[1])  # two float64 libm calls per sample cost ~15 % of a lamp's sample
     x, y = _frame(axis)
     # the outward normal at the sampled point faces the reference point: -w in the cone's frame
-    normal = -(sin_alpha * np.cos(phi) * x + sin_alpha * np.sin(phi) * y + cos_alpha * axis)
+    normal = -(sin_alpha * cos_phi * x + sin_alpha * sin_phi * y + cos_alpha * axis)
     pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
     inside = np.flatnonzero(distance <= radius)
     if inside.size:

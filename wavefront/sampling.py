@@ -485,6 +485,16 @@ def _cos_2pi(u: np.ndarray) -> np.ndarray:
     return np.cos(((2.0 * np.pi) * u).astype(np.float32)).astype(u.dtype, copy=False)
 
 
+def cos_sin_2pi(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``cos(2 pi u)`` and ``sin(2 pi u)``: the cosine from the library (in
+    float32, see :func:`_cos_2pi`), the sine as a signed square root, so one
+    transcendental instead of two (sin >= 0 exactly when u <= 1/2; copysign,
+    not where: the sign is random, and a branchy where mispredicts on every
+    other element)."""
+    c = _cos_2pi(u)
+    return c, np.copysign(np.sqrt(np.maximum(0.0, 1.0 - c * c)), 0.5 - u)
+
+
 def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """Directions uniform on the unit sphere from two uniforms.
 
@@ -498,18 +508,12 @@ def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """
     z = 1.0 - 2.0 * u1
     r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    # cos(phi) from the library, sin(phi) as a signed square root: one
-    # transcendental instead of two (sin >= 0 exactly when u2 <= 1/2)
-    c = _cos_2pi(u2)
-    # copysign, not where: the mask is random, and a branchy where
-    # mispredicts on every other element
-    s = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - c * c)), 0.5 - u2)
+    c, s = cos_sin_2pi(u2)
     return np.stack((r * c, r * s, z))
 
 
 def random_in_unit_disk(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """Points uniform in the unit disk (``r = sqrt(u1)``); shape ``(2, N)``."""
     r = np.sqrt(u1)
-    c = _cos_2pi(u2)
-    s = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - c * c)), 0.5 - u2)  # sin(phi) >= 0 when u2 <= 1/2
+    c, s = cos_sin_2pi(u2)
     return np.stack((r * c, r * s))
