@@ -533,8 +533,8 @@ class BVH:
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2) if self.octants > 1 else 0
-        octant_base = np.broadcast_to(octant * k, ray.shape)  # the root's column in each ray's octant
-        node = octant_base
+        octant_base = np.broadcast_to(octant * k, ray_ids.shape)  # the root's column in each ray's octant
+        node = octant_base.take(ray)
 
         def walk(ray, node, depth, stop=None, rays_walking=ray_ids.size):
             """Breadth-first over (ray, interior node) pairs at ``depth``, testing leaves as
