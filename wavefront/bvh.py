@@ -97,6 +97,12 @@ ROUNDING_PAD = 64
 # faster W2 intersection than 8x, and no slower on scenes without such spheres.
 OUTSIZED = 4.0
 MAX_OUTSIZED = 16
+# ... and above OUTSIZED_SHARE of the diagonal of the other primitives' box: a smaller one
+# stretches only boxes many levels down, and testing every ray against it costs more than
+# that.  W2's balls of radius 1 are 1/31 of its carpet's diagonal; the 1M terrain's two
+# largest triangles (4.4x the median radius, 1/170 of the terrain) took 3 % of its
+# intersection time tested outside the tree.
+OUTSIZED_SHARE = 1 / 64
 # Above this many nodes the traversal tables are stored node-major (a node's
 # 12 box planes, or a leaf's bounding spheres, in one cache line) instead of
 # one row per plane: in a big tree the rows lie megabytes apart and a gathered
@@ -206,7 +212,15 @@ class BVH:
         self.bound_center, self.bound_radius = primitives.bounding_sphere()
         radius = self.bound_radius
         order = np.argsort(-radius, kind="stable")[:MAX_OUTSIZED]
-        self.outsized = np.sort(order[radius[order] > OUTSIZED * np.median(radius)])
+        order = order[radius[order] > OUTSIZED * np.median(radius)]
+        if order.size:
+            rest = np.ones(radius.size, dtype=bool)
+            rest[order] = False
+            if rest.any():
+                lo = (self.bound_center[:, rest] - radius[rest]).min(axis=1)
+                hi = (self.bound_center[:, rest] + radius[rest]).max(axis=1)
+                order = order[radius[order] > OUTSIZED_SHARE * np.linalg.norm(hi - lo)]
+        self.outsized = np.sort(order)
         inside = np.ones(len(primitives), dtype=bool)
         inside[self.outsized] = False
         self.outsized_set = primitives.subset(self.outsized)
@@ -563,7 +577,11 @@ class BVH:
                     # 2n + 1 and 2n + 2 and column c = base + n has its left child at
                     # 2c + 1 - base: arithmetic instead of a gather from a table of 8K
                     # (a cache miss a pair in big trees)
-                    node = 2 * node + 1 - octant_base.take(ray) + (keep >= pairs)
+                    node *= 2
+                    node += keep >= pairs
+                    node += 1
+                    if self.octants > 1:
+                        node -= octant_base.take(ray)
                 else:
                     node = self.octant_left.take(node) + (keep >= pairs)
                 depth += 1
