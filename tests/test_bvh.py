@@ -12,6 +12,7 @@ from wavefront.bvh import LEAF_SIZE, BVH, build_levels
 from wavefront.geometry import T_MIN, precision_for
 from wavefront.shapes import Primitives, QuadSet, SphereSet, TriangleSet
 from wavefront.shapes.base import exact_pad
+from wavefront.shapes.triangle import twice_area
 from wavefront.vecmath import normalize
 
 
@@ -213,6 +214,38 @@ def test_bvh_agrees_on_rays_leaving_a_surface(n, seed, bumps):
     # on their own too, as a batch whose rays all start inside the tree's box
     brute = assert_same_hits(prims, origin[:, back], direction[:, back], np.inf, 4.0)
     assert (brute.t < 1.5 * T_MIN).sum() > k // 10
+
+
+@settings(deadline=None, max_examples=40)
+@given(st.integers(1, 300), st.integers(0, 2**32 - 1), st.sampled_from([np.float32, np.float64]),
+       st.sampled_from([1e-3, 1.0, 1e3]))
+def test_bvh_agrees_on_triangles_hit_at_grazing_angles(m, seed, dtype, scale):
+    """Rays nearly in the planes of triangles, slivers among them, in either
+    precision: the plane pass's margin must hold every hit the exact test accepts,
+    however far off its plane rounding puts it."""
+    rng = np.random.default_rng(seed)
+    v0 = rng.uniform(-1, 1, (3, m))
+    e1 = rng.normal(size=(3, m)) * rng.choice([0.05, 0.5], m)
+    e2 = rng.normal(size=(3, m)) * rng.choice([0.05, 0.5], m)
+    sliver = rng.random(m) < 0.3  # nearly collinear edges
+    e2[:, sliver] = e1[:, sliver] * rng.uniform(0.2, 2, sliver.sum()) + \
+        rng.normal(size=(3, sliver.sum())) * rng.choice([1e-2, 1e-4, 1e-6], sliver.sum())
+    v0, e1, e2 = v0 * scale, e1 * scale, e2 * scale
+    keep = twice_area(v0, v0 + e1, v0 + e2) > 0
+    tris = TriangleSet(v0[:, keep], (v0 + e1)[:, keep], (v0 + e2)[:, keep], np.zeros(keep.sum(), np.int32),
+                       dtype, 4.0 * scale)
+    prims = Primitives([tris], dtype, exact_pad(dtype, 4.0 * scale))
+    n = 400
+    k = rng.integers(0, len(tris), n)
+    b = rng.dirichlet((1, 1, 1), n).T * rng.choice([1.0, 1.0 + 1e-6, 1.0 - 1e-6], n)  # some just off an edge
+    target = tris.v0[:, k].astype(np.float64) + b[1] * tris.e1[:, k] + b[2] * tris.e2[:, k]
+    normal = tris.normal[:, k].astype(np.float64)
+    along = normalize(np.cross(normal, rng.normal(size=(3, n)), axis=0))  # in the plane
+    tilt = rng.choice([0.0, 1e-7, 1e-5, 1e-3, 1e-1], n) * rng.choice([-1, 1], n)
+    direction = normalize(along + tilt * normal)
+    origin = target - direction * rng.uniform(0.01, 2.0, n) * scale
+    origin, direction = origin.astype(dtype), direction.astype(dtype)
+    assert_same_hits(prims, origin, direction, np.inf, 4.0 * scale)
 
 
 def test_switch_is_automatic():

@@ -118,6 +118,19 @@ NODE_MAJOR_NODES = 1 << 14
 # 3 rounds beat 2, 4 and 6.
 SUBTREE_LEVELS = 7
 SUBTREE_ROUNDS = 3
+# The plane pass of triangle slots (see _plane_tables) drops a slot whose plane the ray
+# stays on one side of, by more than a margin, over its whole span in the triangle's box:
+# PLANE_ROUNDING float32 epsilons of the tree's extent cover the pass's own arithmetic (a
+# dozen roundings of terms up to ~5 extents) and the float32 ray and plane, and
+# PLANE_EXACT epsilons of the scene's precision over the sine of the triangle's angle at
+# v0 cover how far off its plane the exact (Moller-Trumbore) test may put a hit it
+# accepts (its t is off by ~eps |o - v0| / (sin * |n.d|)).  Triangles thinner than
+# PLANE_MIN_SINE get no plane (never dropped).  On the 1M terrain the pass drops about
+# half the slots the box pass keeps (rays crossing a box above or below the surface,
+# rays leaving a surface).
+PLANE_ROUNDING = 256
+PLANE_EXACT = 512
+PLANE_MIN_SINE = 2.0 ** -10
 
 
 def float32_up(x) -> np.ndarray:
@@ -302,6 +315,7 @@ class BVH:
             slot_lo = np.where(real, float32_down(prim_lo[:, slot] - pad), np.nan)  # (3, leaf_size, K)
             slot_hi = np.where(real, float32_up(prim_hi[:, slot] + pad), np.nan)
             self.leaf_boxes32 = np.concatenate((slot_lo, slot_hi)).astype(f32).reshape(6 * self.leaf_size, k)
+        self.leaf_planes32 = None if self.sphere_leaves else self._plane_tables(tree_extent, pad)
         lo, hi = float32_down(boxes[:3] - pad), float32_up(boxes[3:] + pad)  # rounded outwards
         left = np.maximum(self.child, 0)
         right = left + (self.child >= 0)
@@ -330,6 +344,37 @@ class BVH:
                 self.leaf_center32 = self.leaf_reach32 = None
             else:
                 self.leaf_boxes32 = np.ascontiguousarray(self.leaf_boxes32.T)  # (K, 6 leaf_size)
+
+    def _plane_tables(self, tree_extent: float, pad: float) -> np.ndarray | None:
+        """Each triangle slot's plane, scaled by its margin: ``(leaf_size * K, 4)``
+        float32 rows ``n / m, (n . v0) / m`` (slot j of node k at j * K + k), NaN
+        for other kinds and padding slots (NaN never drops a slot).
+
+        The plane is the one the exact test sees (the stored v0, e1, e2); with it
+        scaled by the margin ``m`` the pass compares against 1.  ``m`` adds to the
+        roundings (see PLANE_ROUNDING) the box pad: the computed entry and exit of a
+        slot's box hold any hit's t to within it.
+        """
+        kinds = [(i, kind) for i, kind in enumerate(self.primitives.kinds) if kind.name == "triangle"]
+        if not kinds:
+            return None
+        planes = np.full((self.leaf_slot.size, 4), np.nan)
+        slot = self.leaf_slot.ravel()
+        kind_of = self.primitives.kind_of(np.maximum(slot, 0))
+        for i, kind in kinds:
+            sel = np.flatnonzero((slot >= 0) & (kind_of == i))
+            rows = np.take(kind.packed, slot.take(sel) - self.primitives.offsets[i], axis=0).astype(np.float64)
+            v0, e1, e2 = rows[:, 0:3], rows[:, 3:6], rows[:, 6:9]
+            n = np.cross(e1, e2)
+            area = np.linalg.norm(n, axis=1)
+            sine = area / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
+            n /= area[:, None]
+            margin = tree_extent * (PLANE_ROUNDING * float(np.finfo(np.float32).eps) +
+                                    PLANE_EXACT * float(np.finfo(kind.dtype).eps) / sine) + pad
+            planes[sel, :3] = n / margin[:, None]
+            planes[sel, 3] = (n * v0).sum(axis=1) / margin
+            planes[sel[~(sine >= PLANE_MIN_SINE)]] = np.nan
+        return planes.astype(np.float32)
 
     # -- traversal -----------------------------------------------------------
 
@@ -426,7 +471,7 @@ class BVH:
         found = []
 
         k = self.child.size
-        d32 = d.astype(f32) if self.sphere_leaves else None
+        d32 = d.astype(f32) if self.sphere_leaves or self.leaf_planes32 is not None else None
 
         def test_leaves(ray, node, entry, rays_walking):
             """Test (ray, leaf) pairs, each ray's nearest leaves first.
@@ -505,8 +550,30 @@ class BVH:
                 leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
                 slot = np.flatnonzero(entry <= leave)  # j * P + pair for primitive j of pair's leaf
                 pair = slot % ray.size
-                # slot j of node k at j * K + k
-                prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))
+                row = slot // ray.size * k + node.take(pair)  # slot j of node k at j * K + k
+                if self.leaf_planes32 is not None:
+                    # the plane pass: keep the slots whose ray crosses (to within the margin)
+                    # its triangle's plane between entering and leaving its box
+                    plane = np.take(self.leaf_planes32, row, axis=0)  # (S, 4): n / m, c / m
+                    r = ray.take(pair)
+                    o32 = np.take(rays, r, axis=1, mode="wrap")
+                    dr = np.take(d32, r, axis=1, mode="wrap")
+                    at_origin = plane[:, 0] * o32[0]
+                    at_origin += plane[:, 1] * o32[1]
+                    at_origin += plane[:, 2] * o32[2]
+                    at_origin -= plane[:, 3]
+                    along = plane[:, 0] * dr[0]
+                    along += plane[:, 1] * dr[1]
+                    along += plane[:, 2] * dr[2]
+                    s0 = entry.ravel().take(slot) * along
+                    s0 += at_origin
+                    s1 = leave.ravel().take(slot) * along
+                    s1 += at_origin
+                    # NaN (no plane) compares false: kept
+                    apart = (np.minimum(s0, s1) > 1) | (np.maximum(s0, s1) < -1)
+                    near_plane = np.flatnonzero(~apart)
+                    slot, pair, row = slot.take(near_plane), pair.take(near_plane), row.take(near_plane)
+                prim = self.leaf_primitive.take(row)
             ray = ray.take(pair)
             t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1),
                                         None if time is None else time.take(ray))
