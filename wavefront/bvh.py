@@ -131,6 +131,7 @@ SUBTREE_ROUNDS = 3
 PLANE_ROUNDING = 256
 PLANE_EXACT = 512
 PLANE_MIN_SINE = 2.0 ** -10
+PLANE_BUILD_CHUNK = 1 << 16  # slots per step of the planes' build (temporaries of a few MB)
 
 
 def float32_up(x) -> np.ndarray:
@@ -358,23 +359,24 @@ class BVH:
         kinds = [(i, kind) for i, kind in enumerate(self.primitives.kinds) if kind.name == "triangle"]
         if not kinds:
             return None
-        planes = np.full((self.leaf_slot.size, 4), np.nan)
+        planes = np.full((self.leaf_slot.size, 4), np.nan, dtype=np.float32)
         slot = self.leaf_slot.ravel()
         kind_of = self.primitives.kind_of(np.maximum(slot, 0))
         for i, kind in kinds:
             sel = np.flatnonzero((slot >= 0) & (kind_of == i))
-            rows = np.take(kind.packed, slot.take(sel) - self.primitives.offsets[i], axis=0).astype(np.float64)
-            v0, e1, e2 = rows[:, 0:3], rows[:, 3:6], rows[:, 6:9]
-            n = np.cross(e1, e2)
-            area = np.linalg.norm(n, axis=1)
-            sine = area / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
-            n /= area[:, None]
-            margin = tree_extent * (PLANE_ROUNDING * float(np.finfo(np.float32).eps) +
-                                    PLANE_EXACT * float(np.finfo(kind.dtype).eps) / sine) + pad
-            planes[sel, :3] = n / margin[:, None]
-            planes[sel, 3] = (n * v0).sum(axis=1) / margin
-            planes[sel[~(sine >= PLANE_MIN_SINE)]] = np.nan
-        return planes.astype(np.float32)
+            for part in np.array_split(sel, max(1, -(-sel.size // PLANE_BUILD_CHUNK))):  # bounded temporaries
+                rows = np.take(kind.packed, slot.take(part) - self.primitives.offsets[i], axis=0)
+                v0, e1, e2 = (rows[:, j:j + 3].astype(np.float64) for j in (0, 3, 6))
+                n = np.cross(e1, e2)
+                area = np.linalg.norm(n, axis=1)
+                sine = area / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
+                n /= area[:, None]
+                margin = tree_extent * (PLANE_ROUNDING * float(np.finfo(np.float32).eps) +
+                                        PLANE_EXACT * float(np.finfo(kind.dtype).eps) / sine) + pad
+                margin[~(sine >= PLANE_MIN_SINE)] = np.nan  # no plane
+                planes[part, :3] = n / margin[:, None]
+                planes[part, 3] = (n * v0).sum(axis=1) / margin
+        return planes
 
     # -- traversal -----------------------------------------------------------
 
