@@ -110,14 +110,15 @@ OUTSIZED_SHARE = 1 / 64
 # gathers were two thirds of the traversal.  Small trees (W2: ~250 nodes) fit
 # in cache, where the row layout's contiguous arithmetic is faster.
 NODE_MAJOR_NODES = 1 << 14
-# Node-major trees walk their subtrees of SUBTREE_LEVELS levels above the first
-# leaves each ray's nearest first, in SUBTREE_ROUNDS rounds (the last takes all
-# that are left).  On the 1M-triangle terrain, intersection of bounce rays fell
-# from ~4.4 to ~3.45 us per ray while camera rays rose from ~1.7 to ~1.9 us;
-# a path segment ~10 % faster.  Levels 4, 5 and 7 were within noise, 10 slower;
-# 3 rounds beat 2, 4 and 6.
-SUBTREE_LEVELS = 7
-SUBTREE_ROUNDS = 3
+# Node-major trees walk their subtrees of SUBTREE_LEVELS levels above the first leaves
+# each ray's nearest first, in SUBTREE_ROUNDS rounds (the last takes all that are left).
+# On the 1M-triangle terrain, intersection of bounce rays fell from ~4.4 to ~3.45 us per
+# ray while camera rays rose from ~1.7 to ~1.9 us (levels 7, rounds 3; a path segment
+# ~10 % faster).  Once the exact tests grew cheaper (the plane pass), subtrees of 3 levels
+# in 4 rounds measured ~8 % faster on camera rays than 7 and 3, bounce rays within noise
+# (levels 2 to 7 and rounds 2 to 5 tried).
+SUBTREE_LEVELS = 3
+SUBTREE_ROUNDS = 4
 # The plane pass of triangle slots (see _plane_tables) drops a slot whose plane the ray
 # stays on one side of, by more than a margin, over its whole span in the triangle's box:
 # PLANE_ROUNDING float32 epsilons of the tree's extent cover the pass's own arithmetic (a
