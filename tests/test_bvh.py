@@ -9,9 +9,10 @@ from hypothesis import strategies as st
 from wavefront import bvh as bvh_module
 from wavefront.accel import BVH_THRESHOLD, build_intersector
 from wavefront.bvh import LEAF_SIZE, BVH, build_levels
-from wavefront.geometry import precision_for
+from wavefront.geometry import T_MIN, precision_for
 from wavefront.shapes import Primitives, QuadSet, SphereSet, TriangleSet
 from wavefront.shapes.base import exact_pad
+from wavefront.shapes.triangle import twice_area
 from wavefront.vecmath import normalize
 
 
@@ -177,6 +178,76 @@ def test_bvh_with_a_ground_far_below_tiny_spheres():
     assert (brute.primitive_idx == 0).sum() > 10  # and some hit the ground first
 
 
+@settings(deadline=None, max_examples=30)
+@given(st.integers(2, 24), st.integers(0, 2**32 - 1), st.sampled_from([0.0, 1e-3, 0.05]))
+def test_bvh_agrees_on_rays_leaving_a_surface(n, seed, bumps):
+    """Rays that start where rays hit a height field (bounce rays, shift 0 in the
+    traversal) and leave in every direction, many grazing: the boxes they leave
+    before T_MIN are culled, which must never lose a hit past T_MIN."""
+    rng = np.random.default_rng(seed)
+    x, z = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    y = bumps * rng.normal(size=x.shape)
+    grid = np.stack((x, y, z)).reshape(3, -1)
+    i = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    quads = np.stack((i, i + 1, i + n + 2, i + n + 1))
+    faces = np.concatenate((quads[[0, 1, 2]], quads[[0, 2, 3]]), axis=1)
+    # and one tall triangle to the side, so that the rays start inside the tree's box
+    v0, v1, v2 = (np.hstack((grid[:, faces[j]], corner)) for j, corner in
+                  enumerate(([[3.0], [-1.0], [0.0]], [[3.5], [1.0], [0.0]], [[3.0], [1.0], [0.5]])))
+    tris = TriangleSet(v0, v1, v2, np.zeros(v0.shape[1], np.int32), np.float64, 4.0)
+    prims = Primitives([tris], np.float64, exact_pad(np.float64, 4.0))
+    m = 600
+    origin = np.vstack((rng.uniform(-1, 1, m), np.full(m, 1.0), rng.uniform(-1, 1, m)))
+    down = normalize(rng.normal(size=(3, m)) * np.array([[0.3], [0.0], [0.3]]) - np.array([[0], [1], [0]]))
+    first = prims.intersect(origin, down)
+    on = np.flatnonzero(first.primitive_idx >= 0)
+    origin = origin[:, on] + first.t[on] * down[:, on]  # on the surface, as a bounce ray's origin
+    direction = normalize(rng.normal(size=(3, on.size)))
+    k = on.size // 3  # a third nearly along the surface
+    direction[1, :k] *= rng.choice([1e-3, 1e-2, 0.1], k)
+    direction[:, :k] = normalize(direction[:, :k])
+    # and a third start just over T_MIN from the surface, aimed back at it: hits just past T_MIN
+    back = slice(k, 2 * k)
+    away = T_MIN * (1 + rng.choice([1e-9, 1e-6, 1e-3, 0.05, 1.0], k))  # brute force takes those past T_MIN
+    origin[:, back] = origin[:, back] - away * direction[:, back]
+    assert_same_hits(prims, origin, direction, np.inf, 4.0)
+    # on their own too, as a batch whose rays all start inside the tree's box
+    brute = assert_same_hits(prims, origin[:, back], direction[:, back], np.inf, 4.0)
+    assert (brute.t < 1.5 * T_MIN).sum() > k // 10
+
+
+@settings(deadline=None, max_examples=40)
+@given(st.integers(1, 300), st.integers(0, 2**32 - 1), st.sampled_from([np.float32, np.float64]),
+       st.sampled_from([1e-3, 1.0, 1e3]))
+def test_bvh_agrees_on_triangles_hit_at_grazing_angles(m, seed, dtype, scale):
+    """Rays nearly in the planes of triangles, slivers among them, in either
+    precision: the plane pass's margin must hold every hit the exact test accepts,
+    however far off its plane rounding puts it."""
+    rng = np.random.default_rng(seed)
+    v0 = rng.uniform(-1, 1, (3, m))
+    e1 = rng.normal(size=(3, m)) * rng.choice([0.05, 0.5], m)
+    e2 = rng.normal(size=(3, m)) * rng.choice([0.05, 0.5], m)
+    sliver = rng.random(m) < 0.3  # nearly collinear edges
+    e2[:, sliver] = e1[:, sliver] * rng.uniform(0.2, 2, sliver.sum()) + \
+        rng.normal(size=(3, sliver.sum())) * rng.choice([1e-2, 1e-4, 1e-6], sliver.sum())
+    v0, e1, e2 = v0 * scale, e1 * scale, e2 * scale
+    keep = twice_area(v0, v0 + e1, v0 + e2) > 0
+    tris = TriangleSet(v0[:, keep], (v0 + e1)[:, keep], (v0 + e2)[:, keep], np.zeros(keep.sum(), np.int32),
+                       dtype, 4.0 * scale)
+    prims = Primitives([tris], dtype, exact_pad(dtype, 4.0 * scale))
+    n = 400
+    k = rng.integers(0, len(tris), n)
+    b = rng.dirichlet((1, 1, 1), n).T * rng.choice([1.0, 1.0 + 1e-6, 1.0 - 1e-6], n)  # some just off an edge
+    target = tris.v0[:, k].astype(np.float64) + b[1] * tris.e1[:, k] + b[2] * tris.e2[:, k]
+    normal = tris.normal[:, k].astype(np.float64)
+    along = normalize(np.cross(normal, rng.normal(size=(3, n)), axis=0))  # in the plane
+    tilt = rng.choice([0.0, 1e-7, 1e-5, 1e-3, 1e-1], n) * rng.choice([-1, 1], n)
+    direction = normalize(along + tilt * normal)
+    origin = target - direction * rng.uniform(0.01, 2.0, n) * scale
+    origin, direction = origin.astype(dtype), direction.astype(dtype)
+    assert_same_hits(prims, origin, direction, np.inf, 4.0 * scale)
+
+
 def test_switch_is_automatic():
     rng = np.random.default_rng(0)
     assert isinstance(build_intersector(sphere_scene(rng, BVH_THRESHOLD, 10)), BVH)
@@ -201,6 +272,9 @@ def test_level_by_level_build_is_a_valid_median_split_tree():
         assert (tree["lo"][:, child[inner] + side] >= tree["lo"][:, inner]).all()
         assert (tree["hi"][:, child[inner] + side] <= tree["hi"][:, inner]).all()
     assert tree["first_leaf_depth"] >= 1
+    # above the first leaves every level is full and node n's left child is 2n + 1 (the walk relies on it)
+    above = np.arange(2 ** tree["first_leaf_depth"] - 1)
+    np.testing.assert_array_equal(child[above], 2 * above + 1)
 
 
 def test_a_million_triangles_build():

@@ -111,8 +111,12 @@ class TriangleSet(ShapeKind):
         self.v0, self.e1, self.e2, self.box_lo, self.box_hi = (self.packed[:, i:i + 3].T for i in range(0, 15, 3))
 
     def gather(self, idx: np.ndarray) -> list:
-        rows = np.take(self.packed, idx, axis=0).T  # (15, P)
-        return [rows[i:i + 3] for i in range(0, 15, 3)]
+        # whole rows (one or two cache lines each), then one transposed copy: the exact test's
+        # ~50 operations ran ~10 % faster on contiguous fields than on the rows' strided view
+        rows = np.take(self.packed, idx, axis=0)
+        fields = np.empty(rows.shape[::-1], dtype=rows.dtype)  # (15, P)
+        np.copyto(fields, rows.T)
+        return [fields[i:i + 3] for i in range(0, 15, 3)]
 
     def subset(self, idx: np.ndarray):
         part = super().subset(idx)
