@@ -1,5 +1,6 @@
 """The BVH finds exactly the primitive brute force finds, for any scene and ray."""
 
+import contextlib
 import time
 
 import numpy as np
@@ -69,17 +70,32 @@ def subtree_rounds_bvh(prims, extent):
     return bvh
 
 
+@contextlib.contextmanager
+def walked_in_parts():
+    """The traversal's memory bounds (WALK_PAIRS, WALK_PART, LEAF_SLOTS) made
+    tiny, so that every level and every leaf stage is walked in many parts."""
+    saved = bvh_module.WALK_PAIRS, bvh_module.WALK_PART, bvh_module.LEAF_SLOTS
+    bvh_module.WALK_PAIRS, bvh_module.WALK_PART, bvh_module.LEAF_SLOTS = 24, 7, 40
+    try:
+        yield
+    finally:
+        bvh_module.WALK_PAIRS, bvh_module.WALK_PART, bvh_module.LEAF_SLOTS = saved
+
+
 def assert_same_hits(prims, origin, direction, t_max, extent=None):
     brute = prims.intersect(origin, direction, t_max)
     if extent is None:
         lo, hi = prims.bounds()
         extent = max(np.abs(origin).max(), np.abs(lo).max(), np.abs(hi).max()) * np.sqrt(3)
-    for bvh in (BVH(prims, extent), node_major_bvh(prims, extent), subtree_rounds_bvh(prims, extent)):
-        hits = bvh.intersect(origin, direction, t_max)
+    trees = (BVH(prims, extent), node_major_bvh(prims, extent), subtree_rounds_bvh(prims, extent))
+    for bvh, parted in [(tree, False) for tree in trees] + [(trees[0], True), (trees[1], True)]:
+        with walked_in_parts() if parted else contextlib.nullcontext():
+            hits = bvh.intersect(origin, direction, t_max)
+            blocked = bvh.occluded(origin, direction, t_max)
         np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
         np.testing.assert_array_equal(hits.t, brute.t)
         # any-hit agrees with the existence of a nearest hit
-        np.testing.assert_array_equal(bvh.occluded(origin, direction, t_max), brute.primitive_idx >= 0)
+        np.testing.assert_array_equal(blocked, brute.primitive_idx >= 0)
     np.testing.assert_array_equal(prims.occluded(origin, direction, t_max), brute.primitive_idx >= 0)
     return brute
 

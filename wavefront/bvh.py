@@ -88,6 +88,19 @@ LEAF_ROUNDS_ABOVE = 2
 # ~3 % faster at 8192, so small trees keep it.
 TRAVERSAL_BATCH = 8192
 TRAVERSAL_BATCH_BIG = 4096  # for node-major trees: 1M-triangle terrain renders ~10 % faster than at 8192
+# What one batch's walk may hold at once, whatever the geometry.  A ray's
+# (ray, node) pairs grow with the boxes it enters: a ray at the hub of a fan
+# of triangles (an OBJ polygon of 200,000 sides) enters every box, and 64
+# such rays held 2.5 GB.  A level of more than WALK_PAIRS pairs is walked in
+# parts of WALK_PART, one after the other (depth first over the parts, so
+# what waits is a few parts a level: tens of MB); leaves are tested at most
+# LEAF_SLOTS (ray, primitive) slots at a time (up to ~250 bytes each, in the exact
+# test of a slot the box test kept).  A batch of
+# ordinary rays stays far below both (the 1M terrain: ~50 pairs a ray).
+# Parts share the rays' best hits, so the result is the same hit, exactly.
+WALK_PAIRS = 1 << 17
+WALK_PART = 1 << 15
+LEAF_SLOTS = 1 << 17
 # Boxes grow on every side by the larger of two margins.  BOX_PAD of the
 # tree's extent covers float32 traversal: rounding of a shifted origin and of
 # (plane - origin) * (1 / d) moves a computed slab entry by at most ~2**-21 of
@@ -568,6 +581,11 @@ class BVH:
             are tested with brute force's arithmetic in the scene's
             precision.
             """
+            part = max(1, LEAF_SLOTS // self.leaf_size)
+            if ray.size > part:  # bounded temporaries (see LEAF_SLOTS): the same tests, in parts
+                for a in range(0, ray.size, part):
+                    test_slots(ray[a:a + part], node[a:a + part])
+                return
             if self.sphere_leaves:
                 slot, pair, prim = sphere_slots(ray, node)
             # np.minimum, not fmin, at the end of `leave`: a padding slot's NaN must survive to
@@ -655,6 +673,11 @@ class BVH:
             # both children's boxes are tested at once so each level gathers the ray data once
             last = self.first_leaf_depth if stop is None else min(stop, self.first_leaf_depth)
             while ray.size:
+                if ray.size > WALK_PAIRS:  # bounded memory (see WALK_PAIRS): walk the level in parts
+                    parts = [walk(ray[a:a + WALK_PART], node[a:a + WALK_PART], depth, stop, rays_walking)
+                             for a in range(0, ray.size, WALK_PART)]
+                    parts = [p for p in parts if p is not None]
+                    return tuple(np.concatenate(x) for x in zip(*parts)) if parts else None
                 pairs = ray.size
                 levels = min(STEP_LEVELS, last - depth) if self.node_major else 1
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
