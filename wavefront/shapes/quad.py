@@ -170,7 +170,11 @@ class QuadSet(ShapeKind):
         # its rows), so the (ray, quad) pairs of brute force's filter and of the
         # BVH gather them in one call: 4,309 pairs of the Cornell box took 42 us
         # so, 154 us as seven gathers (in isolation; whole renders ~2 % faster).
-        self.field_rows = np.ascontiguousarray(np.concatenate([np.atleast_2d(getattr(self, f)) for f in self.FIELDS]))
+        self._set_rows(np.concatenate([np.atleast_2d(getattr(self, f)) for f in self.FIELDS]))
+
+    def _set_rows(self, rows: np.ndarray) -> None:
+        """Hold ``rows`` (19, M) contiguous and make each field a view of its rows."""
+        self.field_rows = np.ascontiguousarray(rows)
         (self.corner, self.normal, self.offset, self.alpha_axis, self.beta_axis, self.box_lo,
          self.box_hi) = self._split(self.field_rows)
 
@@ -184,9 +188,7 @@ class QuadSet(ShapeKind):
 
     def subset(self, idx: np.ndarray):
         part = super().subset(idx)
-        part.field_rows = np.ascontiguousarray(np.take(self.field_rows, idx, axis=-1))
-        (part.corner, part.normal, part.offset, part.alpha_axis, part.beta_axis, part.box_lo,
-         part.box_hi) = part._split(part.field_rows)
+        part._set_rows(np.take(self.field_rows, idx, axis=-1))
         return part
 
     @classmethod
