@@ -118,6 +118,21 @@ def test_tasks_cover_the_units_in_order_and_shrink_towards_the_end():
     assert list(plan_tasks(plan, capacity, workers=2, first_unit=len(plan))) == []
 
 
+def test_a_small_render_is_shared_out_among_the_workers():
+    from wavefront.render import SMALLEST_SHARED_TASK, plan_tasks
+
+    capacity = 65536
+    for width, height, spp, workers in ((128, 128, 4, 2), (128, 128, 16, 2), (200, 100, 3, 3), (128, 128, 8, 4)):
+        plan = plan_units(width, height, spp)
+        tasks = list(plan_tasks(plan, capacity, workers=workers))
+        assert [u for task in tasks for u in task] == list(plan)
+        assert len(tasks) >= workers, (width, height, spp, workers)
+    # below a pool's start-up cost a render stays one task (inline)
+    tiny = plan_units(128, 128, 1)
+    assert tiny.total_samples <= SMALLEST_SHARED_TASK
+    assert len(list(plan_tasks(tiny, capacity, workers=2))) == 1
+
+
 def test_tasks_are_planned_lazily():
     from wavefront.render import plan_tasks
 

@@ -52,6 +52,11 @@ MIN_CAPACITY = 256  # below this NumPy's fixed cost per call dominates
 # budget (each costs a copy of the parent's resident set): use fewer workers.
 GOOD_CAPACITY = 4096
 TASK_WAVEFRONTS = 4  # a task holds about this many wavefronts' samples
+# A render is shared out below a wavefront per task only down to this many
+# samples a task: starting a pool of forked workers costs about as much as
+# rendering ~10k samples of a small scene on one core (128x128 at 1 spp ran
+# no faster on two workers than inline).
+SMALLEST_SHARED_TASK = 1 << 14
 TASKS_IN_FLIGHT = 2  # per worker: one running, one queued, so no worker waits
 # A finished task's pixel sums held by the parent until merged: at worst one
 # sample per pixel, so as many float64 RGB sums as samples.
@@ -210,15 +215,20 @@ def plan_tasks(plan: UnitPlan, capacity: int, workers: int = 1, first_unit: int 
     the first tasks are long and keep every wavefront full, and the last are
     short so no worker finishes long before the others.  Tiles differ in cost
     (sky is cheap), and with four equal tasks one worker of W2 idled for up
-    to a fifth of the wall time.  Grouping never changes the image: units
-    are merged in order.  Yields lists of units.
+    to a fifth of the wall time.  A task holds at least one full wavefront,
+    unless the whole render is smaller than a wavefront per worker: then it
+    is shared out evenly, so a small image (a preview, a few samples of a
+    128x128 box) still runs on every worker instead of one task in one
+    process, down to ``SMALLEST_SHARED_TASK`` samples a task.  Grouping never
+    changes the image: units are merged in order.  Yields lists of units.
     """
     remaining = plan.total_samples - plan.samples_before(first_unit)
+    smallest = min(capacity, max(SMALLEST_SHARED_TASK, -(-remaining // workers)))
     current, size, target = [], 0, 0
     for i in range(first_unit, len(plan)):
         unit = plan[i]
         if not current:
-            target = min(TASK_WAVEFRONTS * capacity, max(capacity, remaining // (2 * workers)))
+            target = min(TASK_WAVEFRONTS * capacity, max(smallest, remaining // (2 * workers)))
         current.append(unit)
         size += unit.size
         if size >= target:
