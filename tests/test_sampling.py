@@ -27,11 +27,11 @@ from scipy import stats
 from wavefront import (Camera, Emissive, Lambertian, Quad, RenderSettings, Scene, Solid, Sphere, load_scene,
                        render)
 from wavefront.materials import scatter_lambertian
-from wavefront.sampling import (LIGHT_PAIRS, MEDIUM_PAIRS, SAMPLERS, TIME_PAIR, Sampler, _net_table, _owen_mix,
-                                _reverse_bits_int, _sobol_dimension_1_columns, _to_unit, mix64, owen_premix,
-                                owen_scramble_reversed, pair_seeds, path_state, pixel_seeds, random_in_unit_disk,
-                                random_unit_vector, reverse_bits, scene_key, shuffle_index, sobol_points,
-                                sobol_reversed, uniform_pairs)
+from wavefront.sampling import (LIGHT_PAIRS, MEDIUM_PAIRS, SAMPLERS, TIME_PAIR, Sampler, _hash32, _net_table,
+                                _owen_mix, _reverse_bits_int, _sobol_dimension_1_columns, _to_unit, mix64,
+                                owen_premix, owen_scramble_reversed, pair_seeds, path_state, pixel_seeds,
+                                random_in_unit_disk, random_unit_vector, reverse_bits, scene_key, shuffle_index,
+                                sobol_points, sobol_reversed, uniform_pairs)
 from wavefront.vecmath import normalize
 
 N = 200_000
@@ -385,6 +385,43 @@ def test_negative_control_one_seed_for_every_pair_is_rejected():
     assert chi2_pvalue(pair_histogram(a[0], b[0])) < REJECT
 
 
+SEED_PIXELS = 1 << 22  # the weakness the negative control shows needs millions of pixels to stand out
+
+
+def seed_words_histogram(a, b, shift):
+    """Joint histogram of 5 bits of two words (from bit ``shift``) over pixels."""
+    x = ((a >> np.uint32(shift)) & np.uint32(31)).astype(np.int64)
+    y = ((b >> np.uint32(shift)) & np.uint32(31)).astype(np.int64)
+    return np.bincount(x * 32 + y, minlength=1024)
+
+
+def many_pixel_seeds():
+    return pixel_seeds(Sampler(scene_key(5), 16, "sobol").start(np.arange(SEED_PIXELS),
+                                                                   np.arange(SEED_PIXELS, dtype=np.uint64) * 16))
+
+
+def test_seed_words_are_independent_across_rows_and_pairs():
+    """A pair's three words, and the words of neighbouring pairs, are
+    independent across pixels (top and bottom bits)."""
+    q = many_pixel_seeds()
+    for pair in (3, LIGHT_PAIRS):
+        w, next_pair = pair_seeds(q, pair), pair_seeds(q, np.full(q.size, pair + 1))
+        for a, b in ((w[0], w[1]), (w[0], w[2]), (w[1], w[2]), (w[0], next_pair[0]), (w[1], next_pair[1]),
+                     (w[2], next_pair[0])):
+            for shift in (27, 0):
+                assert chi2_pvalue(seed_words_histogram(a, b, shift)) > ACCEPT
+
+
+def test_negative_control_one_hash_of_nearby_keys_is_rejected():
+    """The first design: one lowbias32 of the pixel seed XOR a key per (pair,
+    row), keys ``(pair + row 2^30) * golden`` that differ in their top bits
+    only: the shuffle's and the first scramble's words correlate."""
+    q = many_pixel_seeds()
+    keys = [np.uint32(((3 + (row << 30)) * 0x9E3779B9) & 0xFFFFFFFF) for row in range(2)]
+    shuffle, scramble = (_hash32(q ^ key) for key in keys)
+    assert chi2_pvalue(seed_words_histogram(shuffle, scramble, 27)) < REJECT
+
+
 def within_pixel_statistic(x, y, pixels, spp, bins=4):
     """Mean over pixels of sum over the bins x bins cells of (count - expected)^2,
     where a pixel's samples are binned by ``x`` and ``y``."""
@@ -450,6 +487,13 @@ def test_sampler_kinds():
     assert SAMPLERS == ("sobol", "independent")
     with pytest.raises(ValueError):
         Sampler(scene_key(0), 4, "halton")
+
+
+@pytest.mark.parametrize("pair", [0, 7, LIGHT_PAIRS + 3, MEDIUM_PAIRS + 700])
+def test_sobol_pair_as_int_or_per_path_gives_the_same_numbers(pair):
+    sampler = Sampler(scene_key(3), 10, "sobol")
+    state = sampler.start(np.arange(1000) // 10, np.arange(1000, dtype=np.uint64))
+    np.testing.assert_array_equal(sampler.pairs(state, pair), sampler.pairs(state, np.full(1000, pair)))
 
 
 def test_independent_sampler_is_the_hash_of_the_sample_id():
