@@ -122,6 +122,7 @@ def medium_dimension(depth: np.ndarray, crossing: np.ndarray) -> np.ndarray:
 
 
 _LOW32 = np.uint64(0xFFFFFFFF)
+_S16 = np.uint64(16)
 _LOW24 = np.uint64(0xFFFFFF)
 _S32, _S40, _S8 = np.uint64(32), np.uint64(40), np.uint64(8)
 _TO_UNIT_32 = 2.0**-32
@@ -346,14 +347,15 @@ def _hash32(x: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=256)
 def _pair_key(pair: int) -> np.uint32:
-    """:func:`_hash32` of one pair index, in Python integers."""
+    """:func:`_hash32` of one pair index, then ``x ^= x >> 16`` (see
+    :func:`pair_seeds`), in Python integers."""
     x = pair & 0xFFFFFFFF
     x ^= x >> 16
     x = (x * _LOWBIAS_MULTIPLIERS[0]) & 0xFFFFFFFF
     x ^= x >> 15
     x = (x * _LOWBIAS_MULTIPLIERS[1]) & 0xFFFFFFFF
     x ^= x >> 16
-    return np.uint32(x)
+    return np.uint32(x ^ (x >> 16))
 
 
 # The three words of a pair: the same input through lowbias32's shifts with
@@ -375,16 +377,19 @@ def pair_seeds(pixel_seed: np.ndarray, pair) -> np.ndarray:
     shape ``(3, N)`` uint32: the shuffle's seed, then the scramble seeds of
     dimensions 0 and 1.
 
-    The input is the pixel seed XOR a hash of the pair (a bijection, so two
-    pairs never share an input); its first xorshift runs once, the rest per
-    row in one pass over a ``(3, N)`` array.
+    The input is the pixel's seed XOR a hash of the pair (a bijection, so two
+    pairs never share an input); the rows hash it in one pass over a ``(3,
+    N)`` array.  The hash's first step, ``x ^= x >> 16``, is linear over XOR,
+    so it is applied to each side of the XOR beforehand: to the pixel seed
+    once per path (:meth:`Sampler.start` stores it so), to the pair's hash
+    once per pair.
     """
     if isinstance(pair, (int, np.integer)):
         x = pixel_seed ^ _pair_key(int(pair))
     else:
         x = _hash32(pair.astype(np.uint32))
+        x ^= x >> _S16U
         x ^= pixel_seed
-    x ^= x >> _S16U
     words = x * _ROW_MULTIPLIERS[0]
     t = words >> _U32(15)
     words ^= t
@@ -493,9 +498,10 @@ class Sampler:
     uint64 ``state`` from :meth:`start`:
 
     * independent: the hash of (key, sample id), as :func:`path_state`;
-    * sobol: the pixel seed (the high 32 bits of the hash of (key, pixel))
-      in the high word and the sample index, bit-reversed and premixed, in
-      the low word.  Two pixels share a seed, and so a pattern, with
+    * sobol: the pixel seed (the high 32 bits ``q`` of the hash of (key,
+      pixel), stored as ``q ^ (q >> 16)``, see :func:`pair_seeds`) in the
+      high word and the sample index, bit-reversed and premixed, in the low
+      word.  Two pixels share a seed, and so a pattern, with
       probability ~ pixels^2 / 2^33 (a few in a 4K frame): harmless, each
       pixel's estimate stays unbiased.
     """
@@ -523,6 +529,7 @@ class Sampler:
         index = (sample_id - pixel * np.uint64(self.samples_per_pixel)).astype(np.uint32)
         state = mix64(pixel ^ self.key)
         state &= _HIGH32
+        state ^= (state >> _S16) & _HIGH32  # the seed hash's first step (see pair_seeds), once per path
         state |= owen_premix(reverse_bits(index))
         return state
 
