@@ -193,6 +193,13 @@ def test_sobol_points_of_one_pixel_are_a_02_net(seed, pixel, pair, m, dtype):
     assert is_02_net(u, m)
 
 
+def test_sobol_above_the_table_is_still_a_net():
+    """Past 2^16 samples per pixel the points come from the byte tables instead of one lookup."""
+    m = 17
+    u = pixel_points(Sampler(scene_key(4), 1 << m, "sobol"), 12345, LIGHT_PAIRS + 1)
+    assert is_02_net(u, m)
+
+
 @given(seed=SEEDS, pixel=PIXELS, pair=PAIRS, spp=st.integers(3, 3000).filter(lambda n: n & (n - 1)))
 def test_sobol_with_a_count_that_is_no_power_of_two_stays_a_permuted_sequence(seed, pixel, pair, spp):
     """spp between 2^m and 2^(m+1): the pixel's points are the sequence's
