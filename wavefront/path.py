@@ -420,11 +420,28 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
         live.throughput *= att
         return direction, dead
+    routes = [(np.flatnonzero(np.isin(kind, codes) if len(codes) > 1 else kind == codes[0]), kernel)
+              for codes, kernel in kernels]
+    routes = [(sel, kernel) for sel, kernel in routes if sel.size]
+    if albedo is None and routes:
+        # The kind with the most hits (the walls' lambertian) runs over every
+        # row, so its rows need no gathers and scatters; the other kinds'
+        # rows are then overwritten by index.  Kernels are elementwise, so
+        # every routed row gets exactly its own kernel's numbers; rows of no
+        # kernel (emitters) got the main kernel's but are absorbed already.
+        main = max(range(len(routes)), key=lambda k: routes[k][0].size)
+        att, direction, dead = routes[main][1](table, material, live.direction, normal, front_face, u)
+        for k, (sel, kernel) in enumerate(routes):
+            if k != main:
+                a, d, dd = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
+                                  front_face.take(sel), gather(u, sel))
+                scatter(att, sel, a)
+                scatter(direction, sel, d)
+                dead[sel] = dd
+        live.throughput *= att
+        return direction, absorbed | dead
     direction = live.direction  # overwritten row by row below
-    for kind_codes, kernel in kernels:
-        sel = np.flatnonzero(np.isin(kind, kind_codes) if len(kind_codes) > 1 else kind == kind_codes[0])
-        if sel.size == 0:
-            continue
+    for sel, kernel in routes:
         att, d, dead = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
                               front_face.take(sel), gather(u, sel), None if albedo is None else gather(albedo, sel))
         scatter(live.throughput, sel, gather(live.throughput, sel) * att)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import Sphere, nearest_root, sphere_roots
+from ..geometry import T_MIN, Sphere, nearest_root, sphere_roots
 from ..vecmath import gather
 from .base import ShapeKind
 
@@ -148,6 +148,19 @@ class SphereSet(ShapeKind):
         center, radius_squared = self.gather(idx)
         return self.exact_t(self.center_at(idx, time), radius_squared, origin, direction)
 
+    def any_hit_block(self, start, stop, origin, direction, t_max, time=None):
+        """Whether a root of :func:`~wavefront.geometry.sphere_roots` lies in
+        ``(T_MIN, t_max)``: the same roots as :meth:`t_block`, compared
+        without choosing the nearest (:func:`nearest_root`'s six passes).
+        ``nearest_root < t_max`` exactly when either root is in the interval:
+        the far root is never below the near one, so a near root at or past
+        ``t_max`` leaves none."""
+        if self.velocity is not None and time is not None:
+            return super().any_hit_block(start, stop, origin, direction, t_max, time)
+        center, radius_squared = self.block(start, stop)
+        h, sqrt_disc = sphere_roots(center, radius_squared, origin[:, None, :], direction[:, None, :])
+        return (root_within(h - sqrt_disc, t_max) | root_within(h + sqrt_disc, t_max)).any(axis=0)
+
     @staticmethod
     def exact_t(center, radius_squared, origin, direction):
         """The first root past ``T_MIN`` (``inf`` or NaN for none): see
@@ -158,6 +171,13 @@ class SphereSet(ShapeKind):
         point = origin + t * direction
         outward = (point - self.center_at(idx, time)) * self.inverse_radius.take(idx)
         return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
+
+
+def root_within(t, t_max):
+    """``T_MIN < t < t_max`` (false for NaN, a miss)."""
+    inside = t > T_MIN
+    inside &= t < t_max
+    return inside
 
 
 def sphere_uv(outward: np.ndarray) -> np.ndarray:
