@@ -53,6 +53,16 @@ def object_normal(rotation: np.ndarray | None, idx, outward: np.ndarray) -> np.n
     return np.stack([r[0, i] * outward[0] + r[1, i] * outward[1] + r[2, i] * outward[2] for i in range(3)])
 
 
+# Shadow rays' order of spheres (SphereSet.any_hit_block): probe every
+# PROBE_STRIDE-th ray of a query of at least PROBE_MIN_RAYS (the probe costs
+# ~1/16 of the query); a sphere blocking PROBE_SHARE of the probe goes first.
+# On cornell_spheres (one sphere blocks 42 %) its shadow rays cost ~25 % less;
+# where no sphere blocks that many the probe is all the extra work.
+PROBE_STRIDE = 16
+PROBE_MIN_RAYS = 1024
+PROBE_SHARE = 0.25
+
+
 class SphereSet(ShapeKind):
     """Spheres as arrays: ``center (3, M)``, ``radius (M,)``, at the render's precision.
 
@@ -150,16 +160,42 @@ class SphereSet(ShapeKind):
 
     def any_hit_block(self, start, stop, origin, direction, t_max, time=None):
         """Whether a root of :func:`~wavefront.geometry.sphere_roots` lies in
-        ``(T_MIN, t_max)``: the same roots as :meth:`t_block`, compared
-        without choosing the nearest (:func:`nearest_root`'s six passes).
-        ``nearest_root < t_max`` exactly when either root is in the interval:
-        the far root is never below the near one, so a near root at or past
-        ``t_max`` leaves none."""
+        ``(T_MIN, t_max)`` for some sphere of ``start:stop``: the roots of
+        :meth:`t_block`, compared without choosing the nearest
+        (:func:`nearest_root`'s six passes).  ``nearest_root < t_max`` exactly
+        when either root is in the interval: the far root is never below the
+        near one, so a near root at or past ``t_max`` leaves none.
+
+        The answer is an OR over spheres, so their order is free: when a
+        probe of every ``PROBE_STRIDE``-th ray finds one sphere blocking at
+        least ``PROBE_SHARE`` of them (cornell_spheres' ceiling, into which
+        its lamp is sunk, blocks 42 % of its shadow rays), that sphere is
+        tested first and the rays it blocks skip the others.
+        """
         if self.velocity is not None and time is not None:
             return super().any_hit_block(start, stop, origin, direction, t_max, time)
+        n, m = origin.shape[1], stop - start
+        if m > 1 and n >= PROBE_MIN_RAYS:
+            probe = slice(None, None, PROBE_STRIDE)
+            counts = self._blocking(start, stop, origin[:, probe], direction[:, probe], t_max[probe]).sum(axis=1)
+            top = int(counts.argmax())
+            if counts[top] >= PROBE_SHARE * -(-n // PROBE_STRIDE):
+                blocked = self._blocking(start + top, start + top + 1, origin, direction, t_max)[0]
+                rest = np.flatnonzero(~blocked)
+                o, d, lim = gather(origin, rest), gather(direction, rest), t_max.take(rest)
+                hit = np.zeros(rest.size, dtype=bool)
+                for a, b in ((start, start + top), (start + top + 1, stop)):
+                    if b > a:
+                        hit |= self._blocking(a, b, o, d, lim).any(axis=0)
+                blocked[rest] = hit
+                return blocked
+        return self._blocking(start, stop, origin, direction, t_max).any(axis=0)
+
+    def _blocking(self, start, stop, origin, direction, t_max):
+        """``(stop - start, N)``: whether each sphere has a root in ``(T_MIN, t_max)`` along each ray."""
         center, radius_squared = self.block(start, stop)
         h, sqrt_disc = sphere_roots(center, radius_squared, origin[:, None, :], direction[:, None, :])
-        return (root_within(h - sqrt_disc, t_max) | root_within(h + sqrt_disc, t_max)).any(axis=0)
+        return root_within(h - sqrt_disc, t_max) | root_within(h + sqrt_disc, t_max)
 
     @staticmethod
     def exact_t(center, radius_squared, origin, direction):
