@@ -325,7 +325,8 @@ def mis_weight(pdf_a, pdf_b):
     a2 = pdf_a * pdf_a
     with np.errstate(invalid="ignore", divide="ignore"):
         w = a2 / (a2 + pdf_b * pdf_b)
-    return np.where(a2 > 0, w, 0.0)
+    positive = a2 > 0
+    return w if positive.all() else np.where(positive, w, 0.0)  # a light sample's pdf is positive: no where
 
 
 def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
@@ -377,8 +378,8 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
     f_cos = albedo * p_material  # lambertian_eval's value: its pdf is the one just taken
     contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
-    return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype),
-                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
+    return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
+                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
                        contribution=contribution, slot=live.slot.take(rows),
                        time=None if time is None else time.take(ok),
                        media_mask=None if live.media_mask is None else live.media_mask.take(rows))
