@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import T_MIN, Sphere, nearest_root, sphere_roots
+from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, nearest_root,
+                        sphere_roots)
 from ..vecmath import gather
 from .base import ShapeKind
 
@@ -73,6 +74,8 @@ class SphereSet(ShapeKind):
     """
 
     FIELDS = ("center", "radius_squared")
+    # float32 sets with a huge sphere (anchored): see geometry.FLOAT32_MAX_REACH
+    ANCHORED_FIELDS = ("center", "radius_squared", "near_point", "far_point")
     name = "sphere"
 
     def __init__(self, center, radius, material_idx, dtype=np.float64, velocity=None):
@@ -87,6 +90,21 @@ class SphereSet(ShapeKind):
         self.inverse_radius = (1.0 / radius).astype(dtype)
         self.rotation = None  # (3, 3, M) float64 where some sphere is turned (for uv); see world_rotation
         self.velocity = None
+        # A float32 set reaching past FLOAT32_EXTENT (forced, or a huge sphere
+        # under auto precision) tests every sphere with anchored_roots, from
+        # two antipodal points each: the one nearest the world origin and its
+        # opposite.  Still spheres only (moving ones keep sphere_roots).
+        reach = np.sqrt((center * center).sum(axis=0)) + radius
+        self.anchored = (self.dtype == np.float32 and velocity is None and reach.size > 0
+                         and float(reach.max()) > FLOAT32_EXTENT)
+        if self.anchored:
+            distance = reach - radius
+            toward = np.divide(center, distance, out=np.zeros_like(center), where=distance > 0)
+            toward[2, distance == 0] = 1.0  # a sphere centred on the origin: any pair of antipodes
+            self.near_point = np.ascontiguousarray((center - radius * toward).astype(dtype))
+            self.far_point = np.ascontiguousarray((center + radius * toward).astype(dtype))
+            self.FIELDS = self.ANCHORED_FIELDS
+            self.exact_t = _anchored_t
         if velocity is not None:
             # the end centre rounded to the render's precision, and the velocity
             # taken from the rounded centres: c + 1 * v then lands on it
@@ -192,10 +210,15 @@ class SphereSet(ShapeKind):
         return self._blocking(start, stop, origin, direction, t_max).any(axis=0)
 
     def _blocking(self, start, stop, origin, direction, t_max):
-        """``(stop - start, N)``: whether each sphere has a root in ``(T_MIN, t_max)`` along each ray."""
-        center, radius_squared = self.block(start, stop)
-        h, sqrt_disc = sphere_roots(center, radius_squared, origin[:, None, :], direction[:, None, :])
-        return root_within(h - sqrt_disc, t_max) | root_within(h + sqrt_disc, t_max)
+        """``(stop - start, N)``: whether each sphere has a root in ``(t_min, t_max)`` along each ray."""
+        fields = self.block(start, stop)
+        o, d = origin[:, None, :], direction[:, None, :]
+        if self.anchored:
+            a, b, t_min = anchored_roots(*fields, o, d)
+        else:
+            h, sqrt_disc = sphere_roots(*fields, o, d)
+            a, b, t_min = h - sqrt_disc, h + sqrt_disc, T_MIN
+        return root_within(a, t_min, t_max) | root_within(b, t_min, t_max)
 
     @staticmethod
     def exact_t(center, radius_squared, origin, direction):
@@ -209,11 +232,17 @@ class SphereSet(ShapeKind):
         return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
 
 
-def root_within(t, t_max):
-    """``T_MIN < t < t_max`` (false for NaN, a miss)."""
-    inside = t > T_MIN
+def root_within(t, t_min, t_max):
+    """``t_min < t < t_max`` (false for NaN, a miss)."""
+    inside = t > t_min
     inside &= t < t_max
     return inside
+
+
+def _anchored_t(center, radius_squared, near_point, far_point, origin, direction):
+    """An anchored set's exact test: the first root past each ray's ``t_min``
+    (see :func:`wavefront.geometry.anchored_roots`)."""
+    return first_root(*anchored_roots(center, radius_squared, near_point, far_point, origin, direction))
 
 
 def sphere_uv(outward: np.ndarray) -> np.ndarray:
