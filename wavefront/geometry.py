@@ -318,6 +318,8 @@ def anchored_roots(center, radius_squared, near_point, far_point, origin, direct
     with np.errstate(divide="ignore", invalid="ignore"):
         power /= big  # now the small root
     reach = np.maximum(np.maximum(np.abs(origin[0]), np.abs(origin[1])), np.abs(origin[2]))
+    if reach.max(initial=0.0) <= FLOAT32_EXTENT:
+        return power, big, T_MIN  # the same comparisons as with T_MIN per ray, with no broadcast
     return power, big, np.maximum(reach * RELATIVE_T_MIN, T_MIN)
 
 
