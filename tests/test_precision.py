@@ -162,3 +162,16 @@ def test_float32_image_is_the_float64_image_and_a_wrong_power_is_rejected(monkey
     monkeypatch.setattr(sphere_module, "anchored_roots", _wrong_power)
     wrong = estimate(scene, 12, 700, samples_per_pixel=32)
     assert rejected(wrong, f64)[0], "the z-test did not reject a wrong power of the origin"
+
+
+def test_float32_huge_spheres_image_does_not_depend_on_workers_or_chunk_size():
+    """Paths far out (per-ray t_min) and in the room (scalar T_MIN) share
+    batches differently with every chunk size: the image must not notice."""
+    from wavefront import render_scene
+
+    from .test_render import assert_same_on_two_workers
+
+    scene = cornell_spheres().with_overrides(width=24, height=16, samples_per_pixel=8)
+    image = render_scene(scene, workers=1, chunk_size=4096).image
+    np.testing.assert_array_equal(render_scene(scene, workers=1, chunk_size=300).image, image)
+    assert_same_on_two_workers(scene, image, chunk_size=700)
