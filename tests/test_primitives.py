@@ -246,3 +246,50 @@ def test_the_quad_test_is_the_textbook_arithmetic_bit_for_bit(seed, scale, dtype
     idx = rng.integers(0, len(quads), origin.shape[1])
     np.testing.assert_array_equal(quads.t_pairs(idx, origin, direction),
                                   textbook_quad_t(*quads.gather(idx), origin, direction))
+
+
+@settings(deadline=None, max_examples=40)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.booleans(),
+       st.sampled_from([0.0, 0.25, 2.0]))
+def test_sphere_any_hit_answers_as_the_nearest_root_below_t_max(seed, dtype, moving, probe_share):
+    """The spheres' shadow-ray test (both roots compared, no nearest chosen)
+    answers exactly ``nearest root < t_max`` for rays from inside, from the
+    surface (leaving and entering), grazing, and with ``t_max`` at a root,
+    for huge, tiny and ordinary spheres, whether the probe puts a sphere
+    first (share 0: always; 2: never); moving spheres take the generic test."""
+    from wavefront.shapes import sphere as sphere_module
+    saved, sphere_module.PROBE_SHARE = sphere_module.PROBE_SHARE, probe_share
+    try:
+        _check_sphere_any_hit(seed, dtype, moving)
+    finally:
+        sphere_module.PROBE_SHARE = saved
+
+
+def _check_sphere_any_hit(seed, dtype, moving):
+    rng = np.random.default_rng(seed)
+    m, n = 7, 3000
+    center = rng.uniform(-3, 3, (3, m))
+    center[:, 0] = (-1001.0, 0.0, 0.0)  # a wall of radius 1000
+    radius = np.concatenate(([1000.0, 1e-3], rng.uniform(0.05, 2.0, m - 2)))
+    spheres = SphereSet(center, radius, np.zeros(m, np.int32), dtype,
+                        velocity=rng.uniform(-0.5, 0.5, (3, m)) if moving else None)
+    time = rng.uniform(0, 1, n).astype(dtype) if moving else None
+    origin = rng.uniform(-4, 4, (3, n))
+    direction = normalize(rng.normal(size=(3, n)))
+    pick = rng.integers(0, m, n)
+    on = rng.random(n) < 0.5  # from a sphere's surface, or just inside it
+    outward = normalize(rng.normal(size=(3, n)))
+    origin[:, on] = (center[:, pick] + radius[pick] * rng.choice([1.0, 1 - 1e-7, 1 - 0.5], n) * outward)[:, on]
+    grazing = rng.random(n) < 0.2  # along the tangent plane
+    tangent = normalize(np.cross(outward, rng.normal(size=(3, n)), axis=0))
+    direction[:, on & grazing] = tangent[:, on & grazing]
+    origin, direction = origin.astype(dtype), direction.astype(dtype)
+    t = np.fmin.reduce(spheres.t_block(0, m, origin, direction, time), axis=0)
+    t_max = rng.choice([np.inf, 1.0, 1e-3, 50.0], n).astype(dtype)
+    at_root = np.isfinite(t) & (rng.random(n) < 0.3)
+    t_max[at_root] = t[at_root]  # a root exactly at t_max is not below it
+    past = at_root & (rng.random(n) < 0.5)
+    t_max[past] = np.nextafter(t, np.inf)[past]  # and one just past it is
+    want = (spheres.t_block(0, m, origin, direction, time) < t_max).any(axis=0)
+    np.testing.assert_array_equal(spheres.any_hit_block(0, m, origin, direction, t_max, time), want)
+    assert want.any() and not want.all()

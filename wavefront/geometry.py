@@ -31,6 +31,35 @@ T_MIN = 1e-3  # skip self-intersection at the ray's own origin (shadow acne)
 # move by at most ~1e-4 of the smallest sphere's radius.
 FLOAT32_EXTENT = 256.0
 FLOAT32_MIN_RADIUS = 1e-3
+# Huge spheres (walls of radius 1000 around a small room, as in
+# cornell_spheres) put the extent far past FLOAT32_EXTENT, yet float32 is
+# still accurate enough when the camera, the lights and every sphere of
+# radius up to FLOAT32_EXTENT pass the rule above on their own, and the huge
+# spheres are tested with :func:`anchored_roots`, whose error does not grow
+# with the radius:
+#
+# * the root a ray starting on a surface would find again (the self-hit) is
+#   ``power / big_root``, with the power of the origin ``|o - c|^2 - r^2``
+#   taken as ``(o - q).(o - q')`` from two antipodal points of the sphere,
+#   ``q`` the one nearest the world origin: its error is a few float32
+#   epsilons u of ``|o - q| |o - q'|`` (plus ``q``'s own rounding, u |q|),
+#   and ``big_root`` is about ``2 r cos``, so the self-hit comes out at
+#   ``~u |o - q| / cos``: within 1e-6 / cos of 0 for rays starting near the
+#   room, where Haines' form errs by u |o - c| ~ 6e-5 (measured: one wall
+#   bounce in 700 found its own wall again just past T_MIN);
+# * rays can still start far out on a huge sphere (cornell_spheres' open
+#   front: 8 vertices in 1.4 million beyond 1000 units), where positions
+#   round by u |o|: there a ray skips roots below
+#   ``RELATIVE_T_MIN * max|o_i|`` rather than T_MIN (as Mitsuba's
+#   ``RayEpsilon * (1 + |p|)``), the same ratio of rounding to epsilon as at
+#   FLOAT32_EXTENT under the rule above; rays within FLOAT32_EXTENT keep T_MIN;
+# * a small sphere seen from far out keeps Haines' discriminant: its
+#   silhouette moves by ~u in angle, far below any pixel.
+#
+# The reach ``|c| + r`` of every sphere stays within FLOAT32_MAX_REACH, so
+# float32 squares (up to ~1e13) are nowhere near overflow.
+RELATIVE_T_MIN = T_MIN / FLOAT32_EXTENT
+FLOAT32_MAX_REACH = 1e6
 
 # Elements of one (spheres x rays) temporary; bounds the memory of brute force
 # and keeps blocks in cache.
@@ -263,6 +292,47 @@ def sphere_roots(center, radius_squared, origin, direction):
     with np.errstate(invalid="ignore"):
         sqrt_disc = np.sqrt(disc)
     return h, sqrt_disc
+
+
+def anchored_roots(center, radius_squared, near_point, far_point, origin, direction):
+    """Both roots of unit-direction rays against spheres, for float32 huge
+    spheres (see ``FLOAT32_MAX_REACH`` above for the error argument), and
+    each ray's ``t_min``.
+
+    ``near_point`` and ``far_point`` are antipodal points of each sphere
+    (``near_point`` nearest the world origin).  The discriminant is Haines'
+    (:func:`sphere_roots`); the root of larger magnitude is
+    ``h + sign(h) sqrt_disc`` (no cancellation) and the other comes from
+    the product of the roots, the power of the origin, computed by Thales:
+    ``|o - c|^2 - r^2 = (o - near_point).(o - far_point)``.  Returns
+    ``(small_root, big_root, t_min)``, the roots in either order; a miss
+    gives NaN roots.  ``t_min`` is ``max(T_MIN, RELATIVE_T_MIN max_i |o_i|)``.
+    """
+    h, sqrt_disc = sphere_roots(center, radius_squared, origin, direction)
+    w = [origin[i] - near_point[i] for i in range(3)]
+    power = w[0] * (origin[0] - far_point[0])
+    power += w[1] * (origin[1] - far_point[1])
+    power += w[2] * (origin[2] - far_point[2])
+    big = np.copysign(sqrt_disc, h)
+    big += h
+    with np.errstate(divide="ignore", invalid="ignore"):
+        power /= big  # now the small root
+    reach = np.maximum(np.maximum(np.abs(origin[0]), np.abs(origin[1])), np.abs(origin[2]))
+    if reach.max(initial=0.0) <= FLOAT32_EXTENT:
+        return power, big, T_MIN  # the same comparisons as with T_MIN per ray, with no broadcast
+    return power, big, np.maximum(reach * RELATIVE_T_MIN, T_MIN)
+
+
+def first_root(a, b, t_min):
+    """The smaller of roots ``a`` and ``b`` (either order) past ``t_min``;
+    ``inf`` or NaN where neither is (as :func:`nearest_root`, whose arithmetic it shares)."""
+    a_valid, b_valid = a > t_min, b > t_min
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.abs(a)
+        a /= a_valid
+        b = np.abs(b)
+        b /= b_valid
+    return np.fmin(a, b, out=a)
 
 
 def nearest_root(h, sqrt_disc):

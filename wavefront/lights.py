@@ -193,8 +193,10 @@ class EmitterTable:
         """
         ref = reference.astype(np.float64, copy=False)
         u = u.astype(np.float64, copy=False)
-        e = self.choose(u_choice)
         n = ref.shape[1]
+        # one emitter (RTOW's scenes, cornell_spheres): every sample chooses
+        # it, and the caller need not draw ``u_choice`` (None)
+        e = np.zeros(n, dtype=np.intp) if len(self) == 1 else self.choose(u_choice)
         samplers = ((SPHERE, self._sample_spheres), (QUAD, self._sample_quads), (TRIANGLE, self._sample_triangles))
         if self.kind.min() == self.kind.max():
             # one kind of emitter (RTOW's scenes: quad lights): no routing,
@@ -210,16 +212,19 @@ class EmitterTable:
                     p, nrm, pd = sampler(e.take(sel), gather(ref, sel), gather(u, sel),
                                          None if time is None else time.take(sel))
                     point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
-        to_light = point - ref
-        distance = np.sqrt(dot(to_light, to_light))
-        direction = to_light / np.maximum(distance, np.finfo(np.float64).tiny)
+        direction = point - ref
+        distance = np.sqrt(dot(direction, direction))
+        direction /= np.maximum(distance, np.finfo(np.float64).tiny)
         front = dot(normal, direction) < 0.0  # the light faces the reference point
-        pdf *= self.pmf.take(e)
+        single = len(self) == 1  # its one column broadcasts: no gathers per sample
+        pdf *= self.pmf[0] if single else self.pmf.take(e)
         lit = front & (pdf > 0) & np.isfinite(pdf)
-        radiance = gather(self.radiance, e)
         if self.texture is not None:
+            radiance = gather(self.radiance, e)
             self._texture(radiance, e, kind, point, normal, u)
-        radiance *= lit
+            radiance *= lit
+        else:
+            radiance = (self.radiance[:, :1] if single else gather(self.radiance, e)) * lit
         return LightSample(point, direction, distance, pdf, radiance)
 
     def _texture(self, radiance, e, kind, point, normal, u) -> None:
@@ -255,13 +260,17 @@ class EmitterTable:
         return [np.take(a, e, axis=-1) for a in arrays]
 
     def _centers(self, e, time):
+        still = self.velocity is None or time is None
+        if still and len(self) == 1:
+            return self.origin[:, :1]  # broadcasts (see _columns)
         center = self.origin.take(e, axis=1)
-        if self.velocity is None or time is None:
+        if still:
             return center
         return center + self.velocity.take(e, axis=1) * time
 
     def _sample_spheres(self, e, ref, u, time=None):
-        return sample_sphere(self._centers(e, time), self.radius.take(e), ref, u)
+        return sample_sphere(self._centers(e, time), self.radius[:1] if len(self) == 1 else self.radius.take(e),
+                             ref, u)
 
     def _sample_flat(self, sampler, e, ref, u):
         corner, edge1, edge2, area, normal = self._columns(e, self.origin, self.edge1, self.edge2, self.area,
@@ -338,21 +347,26 @@ def _cone(center, radius, reference):
     """Axis (unit, reference -> centre), distance, sin^2 and 1 - cos of the cone's half-angle."""
     axis = center - reference
     distance = np.sqrt(dot(axis, axis))
-    axis = axis / np.maximum(distance, np.finfo(np.float64).tiny)
-    sin2_max = (radius / np.maximum(distance, np.finfo(np.float64).tiny)) ** 2
-    one_minus_cos_max = np.where(sin2_max < SMALL_CONE_SIN2, 0.5 * sin2_max,
-                                 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max)))
+    clamped = np.maximum(distance, np.finfo(np.float64).tiny)
+    axis /= clamped
+    sin2_max = radius / clamped
+    sin2_max *= sin2_max
+    small = sin2_max < SMALL_CONE_SIN2
+    one_minus_cos_max = 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max))
+    if small.any():  # rare (a lamp 40 radii away): the series only where it is needed
+        one_minus_cos_max = np.where(small, 0.5 * sin2_max, one_minus_cos_max)
     return axis, distance, sin2_max, one_minus_cos_max
 
 
 def _frame(z):
     """Two unit vectors completing unit ``z (3, N)`` to an orthonormal basis
-    (Duff et al. 2017, "Building an Orthonormal Basis, Revisited": branch-free)."""
+    (Duff et al. 2017, "Building an Orthonormal Basis, Revisited": branch-free),
+    as tuples of rows (the caller combines them row by row, with no stacking)."""
     sign = np.copysign(1.0, z[2])
     a = -1.0 / (sign + z[2])
     b = z[0] * z[1] * a
-    x = np.stack((1.0 + sign * z[0] * z[0] * a, sign * b, -sign * z[0]))
-    y = np.stack((b, sign + z[1] * z[1] * a, -z[1]))
+    x = (1.0 + sign * z[0] * z[0] * a, sign * b, -sign * z[0])
+    y = (b, sign + z[1] * z[1] * a, -z[1])
     return x, y
 
 
@@ -364,7 +378,8 @@ def sample_sphere(center, radius, reference, u):
     that direction meets the sphere, computed from the angle ``alpha`` at the
     centre (more accurate than intersecting a ray).  A reference point inside
     a sphere samples it uniformly by area instead (its inside emits nothing,
-    so only the pdf matters there).
+    so only the pdf matters there).  ``center (3, N)`` and ``radius (N,)`` may
+    also be one sphere's, ``(3, 1)`` and ``(1,)``, broadcasting.
 
     Returns
     -------
@@ -374,25 +389,46 @@ def sample_sphere(center, radius, reference, u):
     """
     axis, distance, sin2_max, one_minus_cos_max = _cone(center, radius, reference)
     small = sin2_max < SMALL_CONE_SIN2
-    cos_theta = np.where(small, np.sqrt(np.maximum(0.0, 1.0 - sin2_max * u[0])), 1.0 - one_minus_cos_max * u[0])
-    sin2_theta = np.where(small, sin2_max * u[0], 1.0 - cos_theta * cos_theta)
+    # the where only when some cone is small (both branches cost a pass each)
+    cos_theta = 1.0 - one_minus_cos_max * u[0]
+    if small.any():
+        cos_theta = np.where(small, np.sqrt(np.maximum(0.0, 1.0 - sin2_max * u[0])), cos_theta)
+    sin2_theta = 1.0 - cos_theta * cos_theta
+    if small.any():
+        sin2_theta = np.where(small, sin2_max * u[0], sin2_theta)
     with np.errstate(divide="ignore", invalid="ignore"):
-        sin_max = np.sqrt(sin2_max)
-        cos_alpha = sin2_theta / sin_max + cos_theta * np.sqrt(np.maximum(0.0, 1.0 - sin2_theta / sin2_max))
-    sin_alpha = np.sqrt(np.maximum(0.0, 1.0 - cos_alpha * cos_alpha))
+        cos_alpha = sin2_theta / sin2_max
+        np.subtract(1.0, cos_alpha, out=cos_alpha)
+        np.maximum(cos_alpha, 0.0, out=cos_alpha)
+        np.sqrt(cos_alpha, out=cos_alpha)
+        cos_alpha *= cos_theta
+        cos_alpha += sin2_theta / np.sqrt(sin2_max)
+    sin_alpha = cos_alpha * cos_alpha
+    np.subtract(1.0, sin_alpha, out=sin_alpha)
+    np.maximum(sin_alpha, 0.0, out=sin_alpha)
+    np.sqrt(sin_alpha, out=sin_alpha)
     cos_phi, sin_phi = cos_sin_2pi(u[1])  # two float64 libm calls per sample cost ~15 % of a lamp's sample
     x, y = _frame(axis)
-    # the outward normal at the sampled point faces the reference point: -w in the cone's frame
-    normal = -(sin_alpha * cos_phi * x + sin_alpha * sin_phi * y + cos_alpha * axis)
+    # the outward normal at the sampled point faces the reference point: -w in
+    # the cone's frame, built row by row into one array (no (3, N) temporaries)
+    along_x, along_y = sin_alpha * cos_phi, sin_alpha * sin_phi
+    normal = np.empty(axis.shape)
+    for row, (xi, yi, zi) in enumerate(zip(x, y, axis)):
+        out = normal[row]
+        np.multiply(along_x, xi, out=out)
+        out += along_y * yi
+        out += cos_alpha * zi
+    np.negative(normal, out=normal)
     pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
     inside = np.flatnonzero(distance <= radius)
     if inside.size:
         outward = random_unit_vector(u[0].take(inside), u[1].take(inside))
         normal[:, inside] = outward
         pdf[inside] = 0.0  # set below, from the point
-    point = center + radius * normal
+    point = radius * normal
+    point += center
     if inside.size:
-        r = radius.take(inside) if np.ndim(radius) else radius
+        r = np.broadcast_to(radius, distance.shape).take(inside)
         pdf[inside] = area_to_solid_angle(1.0 / (4.0 * np.pi * r * r), gather(reference, inside),
                                           gather(point, inside), gather(normal, inside))
     return point, normal, pdf

@@ -56,7 +56,7 @@ import numpy as np
 
 from .batch import PathBatch, ShadowBatch
 from .units import Job
-from .materials import lambertian_eval, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
+from .materials import lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
 from .media import ISOTROPIC_PDF, cross, current_medium, medium_albedo, transmittance
 from .sampling import (CROSSINGS_PER_SEGMENT, TIME_PAIR, Sampler, bounce_dimension, light_choice_dimension,
                        light_point_dimension, medium_dimension, random_unit_vector)
@@ -325,7 +325,8 @@ def mis_weight(pdf_a, pdf_b):
     a2 = pdf_a * pdf_a
     with np.errstate(invalid="ignore", divide="ignore"):
         w = a2 / (a2 + pdf_b * pdf_b)
-    return np.where(a2 > 0, w, 0.0)
+    positive = a2 > 0
+    return w if positive.all() else np.where(positive, w, 0.0)  # a light sample's pdf is positive: no where
 
 
 def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
@@ -366,7 +367,7 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     rows = np.flatnonzero(diffuse & ~absorbed & (live.depth + 1 < max_depth))
     state, depth = live.state.take(rows), live.depth.take(rows)
     u_point = sampler.pairs(state, light_point_dimension(depth))
-    u_choice = sampler.pairs(state, light_choice_dimension(depth))[0]
+    u_choice = light_choice(sampler, emitters, state, depth)
     point = gather(surface.point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(point, u_choice, u_point, time)
@@ -375,13 +376,22 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     ok = np.flatnonzero((p_material > 0.0) & (light.radiance.max(axis=0) > 0.0))
     rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
     albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
-    f_cos = lambertian_eval(albedo, gather(normal, ok), gather(light.direction, ok))
+    f_cos = albedo * p_material  # lambertian_eval's value: its pdf is the one just taken
     contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
-    return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype),
-                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype),
+    return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
+                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
                        contribution=contribution, slot=live.slot.take(rows),
                        time=None if time is None else time.take(ok),
                        media_mask=None if live.media_mask is None else live.media_mask.take(rows))
+
+
+def light_choice(sampler: Sampler, emitters, state, depth):
+    """The uniforms choosing each light sample's emitter, or None with one
+    emitter (nothing to choose: not drawing the pair changes no other number,
+    as a pinhole camera's lens pair)."""
+    if len(emitters) == 1:
+        return None
+    return sampler.pairs(state, light_choice_dimension(depth))[0]
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
@@ -411,11 +421,28 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
         live.throughput *= att
         return direction, dead
+    routes = [(np.flatnonzero(np.isin(kind, codes) if len(codes) > 1 else kind == codes[0]), kernel)
+              for codes, kernel in kernels]
+    routes = [(sel, kernel) for sel, kernel in routes if sel.size]
+    if albedo is None and routes:
+        # The kind with the most hits (the walls' lambertian) runs over every
+        # row, so its rows need no gathers and scatters; the other kinds'
+        # rows are then overwritten by index.  Kernels are elementwise, so
+        # every routed row gets exactly its own kernel's numbers; rows of no
+        # kernel (emitters) got the main kernel's but are absorbed already.
+        main = max(range(len(routes)), key=lambda k: routes[k][0].size)
+        att, direction, dead = routes[main][1](table, material, live.direction, normal, front_face, u)
+        for k, (sel, kernel) in enumerate(routes):
+            if k != main:
+                a, d, dd = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
+                                  front_face.take(sel), gather(u, sel))
+                scatter(att, sel, a)
+                scatter(direction, sel, d)
+                dead[sel] = dd
+        live.throughput *= att
+        return direction, absorbed | dead
     direction = live.direction  # overwritten row by row below
-    for kind_codes, kernel in kernels:
-        sel = np.flatnonzero(np.isin(kind, kind_codes) if len(kind_codes) > 1 else kind == kind_codes[0])
-        if sel.size == 0:
-            continue
+    for sel, kernel in routes:
         att, d, dead = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
                               front_face.take(sel), gather(u, sel), None if albedo is None else gather(albedo, sel))
         scatter(live.throughput, sel, gather(live.throughput, sel) * att)
@@ -719,7 +746,7 @@ def sample_lights_in_media(cs: CompiledScene, sampler: Sampler, emitters, live: 
     rows = np.flatnonzero(~absorbed & (live.depth + 1 < max_depth))
     state, depth = live.state.take(rows), live.depth.take(rows)
     u_point = sampler.pairs(state, light_point_dimension(depth))
-    u_choice = sampler.pairs(state, light_choice_dimension(depth))[0]
+    u_choice = light_choice(sampler, emitters, state, depth)
     origin = gather(point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(origin, u_choice, u_point, time)

@@ -33,7 +33,7 @@ import numpy as np
 
 from .background import Background, Sky, Solid
 from .camera import Camera
-from .geometry import Sphere, position, precision_for
+from .geometry import FLOAT32_EXTENT, FLOAT32_MAX_REACH, Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
 from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, boundary_volume, contains
@@ -135,7 +135,11 @@ class RenderSettings:
     ``integrator``         path      ``path`` or ``whitted``
     ``precision``          auto      ``float32``, ``float64``, or ``auto``:
                                      float32 for scenes within 256 units of
-                                     the origin (faster), else float64
+                                     the origin (faster), and for a few
+                                     small spheres inside huge ones (path
+                                     integrator; see
+                                     ``geometry.FLOAT32_MAX_REACH``), else
+                                     float64
     ``light_sampling``     true      ``path``: next-event estimation towards
                                      emissive shapes, combined with material
                                      sampling by MIS (power heuristic)
@@ -615,7 +619,38 @@ def precision_of(scene: Scene, shapes: tuple[np.ndarray, np.ndarray] | None = No
     if scene.quads or scene.triangles or scene.meshes or scene.media:
         return np.dtype(np.float64)
     shapes = shapes if shapes is not None else shape_points(scene)
-    return precision_for(shapes[1][:len(scene.spheres)], scene_extent(scene, shapes))  # spheres come first
+    dtype = precision_for(shapes[1][:len(scene.spheres)], scene_extent(scene, shapes))  # spheres come first
+    if dtype == np.float32 or not _huge_spheres_fit_float32(scene, shapes):
+        return dtype
+    return np.dtype(np.float32)
+
+
+def _huge_spheres_fit_float32(scene: Scene, shapes) -> bool:
+    """Whether a scene of spheres that fails the float32 rule only through
+    huge spheres (radius above ``FLOAT32_EXTENT``) runs in float32 with them
+    anchored (see ``geometry.FLOAT32_MAX_REACH``): everything else (camera,
+    lights, the other spheres) passes the rule on its own, and every reach
+    ``|c| + r`` is within ``FLOAT32_MAX_REACH``.  The path integrator only:
+    Whitted's one ray through each pixel centre sees a huge ground's far
+    horizon, where a hit's shading flips with rounding (0.5 % of
+    whitted.yaml's pixels moved, by up to 0.12; in a path-traced image such
+    flips are noise).  Moving spheres keep float64
+    (their anchors would move), and so do scenes of ``accel.BVH_THRESHOLD``
+    primitives or more: the BVH's float32 traversal pads its boxes for the
+    scene extent, and far positions with a relative ``t_min`` are not yet
+    checked there."""
+    from .accel import BVH_THRESHOLD
+
+    if (scene.render.integrator != "path" or len(scene.spheres) >= BVH_THRESHOLD
+            or any(s.center1 is not None for s in scene.spheres)):
+        return False
+    center, radius = shapes
+    huge = radius > FLOAT32_EXTENT
+    with np.errstate(over="ignore"):
+        reach = np.linalg.norm(center, axis=1) + radius
+    if not huge.any() or not reach.max() <= FLOAT32_MAX_REACH:
+        return False
+    return precision_for(radius[~huge], scene_extent(scene, (center[~huge], radius[~huge]))) == np.float32
 
 
 def turntable(scene: Scene, frame: int, frames: int) -> Scene:

@@ -109,6 +109,12 @@ class ShapeKind:
         """``(P,)`` hit distances of pairs: ray ``p`` (a column of ``origin``) against primitive ``idx[p]``."""
         return self.exact_t(*self.gather(idx), origin, direction)
 
+    def any_hit_block(self, start: int, stop: int, origin, direction, t_max, time=None) -> np.ndarray:
+        """``(N,)`` whether each ray meets some primitive of ``start:stop`` at
+        ``T_MIN < t < t_max (N,)``: exactly whether :meth:`t_block`'s nearest
+        hit is below ``t_max`` (a kind may answer it with less arithmetic)."""
+        return (self.t_block(start, stop, origin, direction, time) < t_max).any(axis=0)  # NaN compares false
+
     def subset(self, idx: np.ndarray):
         """The primitives ``idx``, every per-primitive array copied (never
         recomputed from rounded values, so a subset intersects bit for bit as

@@ -286,7 +286,8 @@ class Primitives:
         live = np.arange(n)
         o, d, lim, tm = origin, direction, limit, time
         rays32 = SlabFilter.rays(origin, direction, limit) if self._filtered(origin) else None
-        for kind, slab, _, start, stop in self._blocks(n):
+        blocks = list(self._blocks(n))
+        for b, (kind, slab, _, start, stop) in enumerate(blocks):
             if live.size == 0:
                 break
             if slab is not None and rays32 is not None:
@@ -298,7 +299,10 @@ class Primitives:
                 hit = np.zeros(live.size, dtype=bool)
                 hit[ray[t < lim.take(ray)]] = True  # NaN compares false
             else:
-                hit = (kind.t_block(start, stop, o, d, tm) < lim).any(axis=0)  # NaN compares false
+                hit = kind.any_hit_block(start, stop, o, d, lim, tm)
+            if b == len(blocks) - 1:  # the last block: no rays left to compact for
+                blocked[live[hit]] = True
+                break
             if hit.any():
                 blocked[live[hit]] = True
                 keep = np.flatnonzero(~hit)

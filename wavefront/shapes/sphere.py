@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import Sphere, nearest_root, sphere_roots
+from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, nearest_root,
+                        sphere_roots)
 from ..vecmath import gather
 from .base import ShapeKind
 
@@ -53,6 +54,16 @@ def object_normal(rotation: np.ndarray | None, idx, outward: np.ndarray) -> np.n
     return np.stack([r[0, i] * outward[0] + r[1, i] * outward[1] + r[2, i] * outward[2] for i in range(3)])
 
 
+# Shadow rays' order of spheres (SphereSet.any_hit_block): probe every
+# PROBE_STRIDE-th ray of a query of at least PROBE_MIN_RAYS (the probe costs
+# ~1/16 of the query); a sphere blocking PROBE_SHARE of the probe goes first.
+# On cornell_spheres (one sphere blocks 42 %) its shadow rays cost ~25 % less;
+# where no sphere blocks that many the probe is all the extra work.
+PROBE_STRIDE = 16
+PROBE_MIN_RAYS = 1024
+PROBE_SHARE = 0.25
+
+
 class SphereSet(ShapeKind):
     """Spheres as arrays: ``center (3, M)``, ``radius (M,)``, at the render's precision.
 
@@ -63,6 +74,8 @@ class SphereSet(ShapeKind):
     """
 
     FIELDS = ("center", "radius_squared")
+    # float32 sets with a huge sphere (anchored): see geometry.FLOAT32_MAX_REACH
+    ANCHORED_FIELDS = ("center", "radius_squared", "near_point", "far_point")
     name = "sphere"
 
     def __init__(self, center, radius, material_idx, dtype=np.float64, velocity=None):
@@ -77,6 +90,21 @@ class SphereSet(ShapeKind):
         self.inverse_radius = (1.0 / radius).astype(dtype)
         self.rotation = None  # (3, 3, M) float64 where some sphere is turned (for uv); see world_rotation
         self.velocity = None
+        # A float32 set reaching past FLOAT32_EXTENT (forced, or a huge sphere
+        # under auto precision) tests every sphere with anchored_roots, from
+        # two antipodal points each: the one nearest the world origin and its
+        # opposite.  Still spheres only (moving ones keep sphere_roots).
+        reach = np.sqrt((center * center).sum(axis=0)) + radius
+        self.anchored = (self.dtype == np.float32 and velocity is None and reach.size > 0
+                         and float(reach.max()) > FLOAT32_EXTENT)
+        if self.anchored:
+            distance = reach - radius
+            toward = np.divide(center, distance, out=np.zeros_like(center), where=distance > 0)
+            toward[2, distance == 0] = 1.0  # a sphere centred on the origin: any pair of antipodes
+            self.near_point = np.ascontiguousarray((center - radius * toward).astype(dtype))
+            self.far_point = np.ascontiguousarray((center + radius * toward).astype(dtype))
+            self.FIELDS = self.ANCHORED_FIELDS
+            self.exact_t = _anchored_t
         if velocity is not None:
             # the end centre rounded to the render's precision, and the velocity
             # taken from the rounded centres: c + 1 * v then lands on it
@@ -148,6 +176,50 @@ class SphereSet(ShapeKind):
         center, radius_squared = self.gather(idx)
         return self.exact_t(self.center_at(idx, time), radius_squared, origin, direction)
 
+    def any_hit_block(self, start, stop, origin, direction, t_max, time=None):
+        """Whether a root of :func:`~wavefront.geometry.sphere_roots` lies in
+        ``(T_MIN, t_max)`` for some sphere of ``start:stop``: the roots of
+        :meth:`t_block`, compared without choosing the nearest
+        (:func:`nearest_root`'s six passes).  ``nearest_root < t_max`` exactly
+        when either root is in the interval: the far root is never below the
+        near one, so a near root at or past ``t_max`` leaves none.
+
+        The answer is an OR over spheres, so their order is free: when a
+        probe of every ``PROBE_STRIDE``-th ray finds one sphere blocking at
+        least ``PROBE_SHARE`` of them (cornell_spheres' ceiling, into which
+        its lamp is sunk, blocks 42 % of its shadow rays), that sphere is
+        tested first and the rays it blocks skip the others.
+        """
+        if self.velocity is not None and time is not None:
+            return super().any_hit_block(start, stop, origin, direction, t_max, time)
+        n, m = origin.shape[1], stop - start
+        if m > 1 and n >= PROBE_MIN_RAYS:
+            probe = slice(None, None, PROBE_STRIDE)
+            counts = self._blocking(start, stop, origin[:, probe], direction[:, probe], t_max[probe]).sum(axis=1)
+            top = int(counts.argmax())
+            if counts[top] >= PROBE_SHARE * -(-n // PROBE_STRIDE):
+                blocked = self._blocking(start + top, start + top + 1, origin, direction, t_max)[0]
+                rest = np.flatnonzero(~blocked)
+                o, d, lim = gather(origin, rest), gather(direction, rest), t_max.take(rest)
+                hit = np.zeros(rest.size, dtype=bool)
+                for a, b in ((start, start + top), (start + top + 1, stop)):
+                    if b > a:
+                        hit |= self._blocking(a, b, o, d, lim).any(axis=0)
+                blocked[rest] = hit
+                return blocked
+        return self._blocking(start, stop, origin, direction, t_max).any(axis=0)
+
+    def _blocking(self, start, stop, origin, direction, t_max):
+        """``(stop - start, N)``: whether each sphere has a root in ``(t_min, t_max)`` along each ray."""
+        fields = self.block(start, stop)
+        o, d = origin[:, None, :], direction[:, None, :]
+        if self.anchored:
+            a, b, t_min = anchored_roots(*fields, o, d)
+        else:
+            h, sqrt_disc = sphere_roots(*fields, o, d)
+            a, b, t_min = h - sqrt_disc, h + sqrt_disc, T_MIN
+        return root_within(a, t_min, t_max) | root_within(b, t_min, t_max)
+
     @staticmethod
     def exact_t(center, radius_squared, origin, direction):
         """The first root past ``T_MIN`` (``inf`` or NaN for none): see
@@ -158,6 +230,19 @@ class SphereSet(ShapeKind):
         point = origin + t * direction
         outward = (point - self.center_at(idx, time)) * self.inverse_radius.take(idx)
         return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
+
+
+def root_within(t, t_min, t_max):
+    """``t_min < t < t_max`` (false for NaN, a miss)."""
+    inside = t > t_min
+    inside &= t < t_max
+    return inside
+
+
+def _anchored_t(center, radius_squared, near_point, far_point, origin, direction):
+    """An anchored set's exact test: the first root past each ray's ``t_min``
+    (see :func:`wavefront.geometry.anchored_roots`)."""
+    return first_root(*anchored_roots(center, radius_squared, near_point, far_point, origin, direction))
 
 
 def sphere_uv(outward: np.ndarray) -> np.ndarray:

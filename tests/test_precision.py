@@ -1,0 +1,177 @@
+"""Float32 for scenes of small spheres inside huge ones (geometry.FLOAT32_MAX_REACH).
+
+The policy both ways (cornell_spheres' walls of radius 1000 run anchored in
+float32; far cameras, tiny spheres, far small spheres, astronomic reaches,
+moving spheres and BVH-sized scenes keep float64), the anchored roots' error
+(no ray leaving a huge wall finds it again, where Haines' float32 roots do),
+and the image: a per-pixel z-test of cornell_spheres in float32 against
+float64, with a wrong power of the origin that the same test must reject.
+"""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import wavefront.shapes.sphere as sphere_module
+from wavefront import Sphere, load_scene
+from wavefront.geometry import (FLOAT32_EXTENT, T_MIN, anchored_roots, first_root, nearest_root,
+                                sphere_roots)
+from wavefront.scene import precision_of
+from wavefront.shapes import SphereSet
+from wavefront.vecmath import normalize
+
+from .test_light_sampling import estimate, rejected, with_settings
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def cornell_spheres():
+    return load_scene(SCENES / "cornell_spheres.yaml")
+
+
+def test_huge_walls_around_a_small_room_run_anchored_in_float32():
+    scene = cornell_spheres()
+    assert precision_of(scene) == np.float32
+    spheres = scene.compile().shapes.kinds[0]
+    assert spheres.anchored and spheres.dtype == np.float32
+    # the anchors are antipodal points of each sphere, the first nearest the origin
+    near, far = spheres.near_point.astype(np.float64), spheres.far_point.astype(np.float64)
+    np.testing.assert_allclose(near[:, 0], (-1.0, 0.0, 0.0))
+    np.testing.assert_allclose(0.5 * (near + far), spheres.center.astype(np.float64), atol=1e-4)
+
+
+@pytest.mark.parametrize("change", ["far camera", "tiny sphere", "far small sphere", "astronomic wall",
+                                    "moving sphere", "BVH-sized", "no huge sphere", "whitted"])
+def test_hostile_scenes_keep_float64(change):
+    """Everything but the huge spheres must pass the float32 rule on its own."""
+    scene = cornell_spheres()
+    white = "white"
+    if change == "far camera":
+        scene = scene.replace(camera=dataclasses.replace(scene.camera, look_from=(0.0, 0.0, 400.0)))
+    elif change == "tiny sphere":
+        scene = scene.replace(spheres=[*scene.spheres, Sphere((0.0, 0.0, 0.0), 1e-4, white)])
+    elif change == "far small sphere":
+        scene = scene.replace(spheres=[*scene.spheres, Sphere((300.0, 0.0, 0.0), 1.0, white)])
+    elif change == "astronomic wall":
+        scene = scene.replace(spheres=[*scene.spheres, Sphere((0.0, -2e6 - 1.0, 0.0), 2e6, white)])
+    elif change == "moving sphere":
+        scene = scene.replace(spheres=[*scene.spheres, Sphere((0.0, 0.0, 0.0), 0.1, white, center1=(0.1, 0, 0))])
+    elif change == "BVH-sized":
+        rng = np.random.default_rng(1)
+        extra = [Sphere(tuple(rng.uniform(-0.8, 0.8, 3)), 0.02, white) for _ in range(60)]
+        scene = scene.replace(spheres=[*scene.spheres, *extra])
+    elif change == "whitted":  # pixel centres: the horizon of a huge ground must not flip with rounding
+        scene = scene.replace(render=dataclasses.replace(scene.render, integrator="whitted"))
+    elif change == "no huge sphere":  # the walls at 300: everything fails the rule, nothing is huge
+        scene = scene.replace(spheres=[Sphere((300.0, 0.0, 0.0), 2.0, white), *scene.spheres[5:]])
+    assert precision_of(scene) == np.float64
+
+
+def test_the_policy_leaves_scenes_of_ordinary_spheres_as_they_were():
+    assert precision_of(load_scene(SCENES / "three_spheres.yaml")) == np.float32
+    assert not load_scene(SCENES / "three_spheres.yaml").compile().shapes.kinds[0].anchored  # ground radius 100
+    assert precision_of(load_scene(SCENES / "final_scene.yaml")) == np.float64  # 486 spheres: the BVH
+
+
+def wall_departures(rng, n):
+    """Float32 points on the left wall of cornell_spheres (radius 1000) within
+    the room, and directions leaving it into the room, half of them within
+    3 degrees of grazing (where a self-hit past T_MIN shows first)."""
+    center, radius = np.array([-1001.0, 0.0, 0.0]), 1000.0
+    y, z = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    point = np.stack((center[0] + np.sqrt(radius**2 - y * y - z * z), y, z))
+    normal = normalize(point - center[:, None])
+    tangent = normalize(np.cross(normal, rng.normal(size=(3, n)), axis=0))
+    cos = np.where(rng.random(n) < 0.5, rng.uniform(0, 0.05, n), rng.uniform(0, 1, n))
+    direction = normalize(cos * normal + np.sqrt(1 - cos * cos) * tangent)
+    return point.astype(np.float32), direction.astype(np.float32), center, radius
+
+
+def test_rays_leaving_a_huge_wall_never_find_it_again_in_float32():
+    """A ray leaving the outside of a sphere cannot meet it again.  Haines'
+    roots in float32 err by ~u |o - c| (6e-5 at the walls' 1000 units): some
+    grazing departures find their own wall a little past T_MIN (the negative
+    control); the anchored roots err by ~u |o - q| / cos and find none."""
+    rng = np.random.default_rng(5)
+    origin, direction, center, radius = wall_departures(rng, 40000)
+    spheres = SphereSet(center[:, None], [radius], [0], np.float32)
+    assert spheres.anchored
+    t = spheres.t_pairs(np.zeros(origin.shape[1], dtype=np.int64), origin, direction)
+    assert not (t < np.inf).any()
+    c, r2 = center.astype(np.float32)[:, None], np.float32(radius * radius)
+    haines = nearest_root(*sphere_roots(c, r2, origin, direction))
+    self_hits = haines < np.inf
+    assert self_hits.sum() >= 20 and haines[self_hits].max() < 1.0  # all of them within a unit of the origin
+
+
+def test_anchored_float32_hits_lie_on_the_float64_spheres():
+    """From points in the room (and far out, beyond FLOAT32_EXTENT), the
+    anchored float32 test hits where float64 does, and its hit points lie on
+    the spheres to a few float32 epsilons of the distance from the origin (along a grazing
+    ray the hit may slide further: the root is ill-conditioned there in any
+    precision, but the point stays on the surface)."""
+    scene = cornell_spheres()
+    s32 = scene.compile().shapes.kinds[0]
+    s64 = with_settings(scene, precision="float64").compile().shapes.kinds[0]
+    rng = np.random.default_rng(9)
+    n = 20000
+    origin = rng.uniform(-0.95, 0.95, (3, n))
+    origin[:, :2000] *= rng.uniform(1, 900, 2000)  # some far out, beyond FLOAT32_EXTENT
+    direction = normalize(rng.normal(size=(3, n))).astype(np.float32)
+    origin = origin.astype(np.float32)
+    m = len(s32)
+    t32 = s32.t_block(0, m, origin, direction).astype(np.float64)
+    # the same rays in float64, their directions renormalised (the roots assume |d| = 1)
+    o64, d64 = origin.astype(np.float64), normalize(direction.astype(np.float64))
+    t64 = s64.t_block(0, m, o64, d64)
+    # hit or miss differs only where float32 rounding decides: a handful of pairs
+    assert (np.isfinite(t32) != np.isfinite(t64)).sum() <= n * m * 1e-4
+    both = np.isfinite(t32) & np.isfinite(t64)
+    sphere, ray = np.nonzero(both)
+    point = o64[:, ray] + t32[sphere, ray] * d64[:, ray]
+    off = np.abs(np.linalg.norm(point - s64.center[:, sphere], axis=0) - np.sqrt(s64.radius_squared[sphere]))
+    scale = np.abs(o64[:, ray]).max(axis=0) + t32[sphere, ray]
+    assert (off / scale).max() <= 4e-6 and np.median(off / scale) <= 1e-7  # ~64 and ~2 float32 epsilons
+    assert (np.abs(origin).max(axis=0) > FLOAT32_EXTENT).any() and ray.size > n
+
+
+def test_first_root_is_nearest_root_on_haines_roots():
+    """The anchored test's root choice is nearest_root's arithmetic on any pair of roots."""
+    rng = np.random.default_rng(2)
+    h, s = rng.uniform(-3, 3, 1000), np.abs(rng.normal(size=1000))
+    s[::7] = np.nan
+    np.testing.assert_array_equal(np.nan_to_num(first_root(h + s, h - s, T_MIN), nan=np.inf),
+                                  np.nan_to_num(nearest_root(h, s), nan=np.inf))
+
+
+def _wrong_power(center, radius_squared, near_point, far_point, origin, direction):
+    """A deliberately wrong anchored test: the power of the origin taken
+    from the near point and the centre (not two antipodes)."""
+    return anchored_roots(center, radius_squared, near_point, center, origin, direction)
+
+
+def test_float32_image_is_the_float64_image_and_a_wrong_power_is_rejected(monkeypatch):
+    scene = cornell_spheres().with_overrides(width=24, height=24)
+    wide = with_settings(scene, precision="float64")
+    f64 = estimate(wide, 12, 300, samples_per_pixel=32)
+    f32 = estimate(scene, 12, 500, samples_per_pixel=32)
+    bad, z = rejected(f32, f64)
+    assert not bad, f"float32 differs from float64 (max |z| {z:.1f})"
+    monkeypatch.setattr(sphere_module, "anchored_roots", _wrong_power)
+    wrong = estimate(scene, 12, 700, samples_per_pixel=32)
+    assert rejected(wrong, f64)[0], "the z-test did not reject a wrong power of the origin"
+
+
+def test_float32_huge_spheres_image_does_not_depend_on_workers_or_chunk_size():
+    """Paths far out (per-ray t_min) and in the room (scalar T_MIN) share
+    batches differently with every chunk size: the image must not notice."""
+    from wavefront import render_scene
+
+    from .test_render import assert_same_on_two_workers
+
+    scene = cornell_spheres().with_overrides(width=24, height=16, samples_per_pixel=8)
+    image = render_scene(scene, workers=1, chunk_size=4096).image
+    np.testing.assert_array_equal(render_scene(scene, workers=1, chunk_size=300).image, image)
+    assert_same_on_two_workers(scene, image, chunk_size=700)
