@@ -450,7 +450,9 @@ class BVH:
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         # outsized primitives first: their hits bound the traversal (none: skip brute force's
         # passes over the rays, 6 % of a terrain's camera rays)
-        first = self.outsized_set.intersect(origin, direction, t_max, time) if len(self.outsized) else None
+        # (one call of brute force's own: a batch is at most TRAVERSAL_BATCH rays against at most
+        # MAX_OUTSIZED primitives, which its chunks of rays would only split into more calls)
+        first = self.outsized_set._intersect(origin, direction, t_max, time) if len(self.outsized) else None
         best_t = limit.copy() if first is None else np.minimum(first.t, limit)
         found = self._traverse(origin, direction, limit, best_t, time=time)  # lowers best_t to the tree's hits
         none = len(self.primitives)  # sentinel above every index, so np.minimum keeps real ones
@@ -470,7 +472,7 @@ class BVH:
     def _occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        blocked = self.outsized_set.occluded(origin, direction, limit, time) if len(self.outsized_set) else \
+        blocked = self.outsized_set._occluded(origin, direction, limit, time) if len(self.outsized_set) else \
             np.zeros(n, dtype=bool)
         rest = np.flatnonzero(~blocked)
         if rest.size:
@@ -754,4 +756,9 @@ class BVH:
                     alive = np.flatnonzero(entry <= to_beat.take(ray))
                     ray, node, entry = ray.take(alive), node.take(alive), entry.take(alive)
         best_t[ray_ids] = nearest
+        # walk and test_slots call themselves (parts, for bounded memory), so each closure holds
+        # a reference to itself: a cycle that kept every array of the call (rays, bounds, pair
+        # lists) alive until the garbage collector's next pass, and W2 rendered ~10 % slower
+        # (more memory touched, and the collector's passes).  Unset, they are freed on return.
+        walk = test_slots = None  # noqa: F841
         return found
