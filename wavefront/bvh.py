@@ -468,11 +468,11 @@ class BVH:
         none = len(self.primitives)  # sentinel above every index, so np.minimum keeps real ones
         best_idx = np.full(n, none, dtype=np.int64)
         if first is not None:
-            from_first = np.flatnonzero((first.primitive_idx >= 0) & (first.t == best_t))
+            from_first = ((first.primitive_idx >= 0) & (first.t == best_t)).nonzero()[0]
             best_idx[from_first] = self.outsized.take(first.primitive_idx.take(from_first))
         if found:
             ray, t, prim = (np.concatenate(a) for a in zip(*found))
-            winner = np.flatnonzero(t == best_t.take(ray))
+            winner = (t == best_t.take(ray)).nonzero()[0]
             # ties go to the lowest primitive index, as in brute force
             np.minimum.at(best_idx, ray.take(winner), prim.take(winner))
         missed = best_idx == none
@@ -484,7 +484,7 @@ class BVH:
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         blocked = self.outsized_set._occluded(origin, direction, limit, time) if len(self.outsized_set) else \
             np.zeros(n, dtype=bool)
-        rest = np.flatnonzero(~blocked)
+        rest = (~blocked).nonzero()[0]
         if rest.size:
             o, d, lim = origin.take(rest, axis=1), direction.take(rest, axis=1), limit.take(rest)
             found = self._traverse(o, d, lim, lim.copy(), any_hit=True, time=None if time is None else time.take(rest))
@@ -510,7 +510,7 @@ class BVH:
         lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
         near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
         far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
-        ray_ids = np.flatnonzero((near <= far) & (far >= T_MIN) & (near <= best_t))
+        ray_ids = ((near <= far) & (far >= T_MIN) & (near <= best_t)).nonzero()[0]
         if ray_ids.size == 0:
             return []
         # from here on per-ray arrays are indexed by position in ray_ids
@@ -548,12 +548,12 @@ class BVH:
                     np.minimum.at(first, ray, entry)
                     now = entry <= first.take(ray)
                     test_slots(ray[now], node[now])
-                    later = np.flatnonzero(~now)
+                    later = (~now).nonzero()[0]
                 else:
                     test_slots(ray, node)
                     break
                 ray, node, entry = ray.take(later), node.take(later), entry.take(later)
-                alive = np.flatnonzero(entry <= to_beat.take(ray))
+                alive = (entry <= to_beat.take(ray)).nonzero()[0]
                 if alive.size == 0:
                     break
                 ray, node, entry = ray.take(alive), node.take(alive), entry.take(alive)
@@ -567,10 +567,10 @@ class BVH:
                 rows = gather_columns(self.leaf_rows32, node)  # (4 leaf_size, P)
                 center, reach = rows[:3 * self.leaf_size].reshape(3, self.leaf_size, -1), rows[3 * self.leaf_size:]
             else:
-                center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, leaf_size, P)
-                reach = np.take(self.leaf_reach32, node, axis=1, mode="wrap")  # padded radius
-            oc = center - np.take(rays, ray, axis=1, mode="wrap")[:3, None, :]
-            dr = np.take(d32, ray, axis=1, mode="wrap")[:, None, :]
+                center = self.leaf_center32.take(node, axis=2, mode="wrap")  # (3, leaf_size, P)
+                reach = self.leaf_reach32.take(node, axis=1, mode="wrap")  # padded radius
+            oc = center - rays.take(ray, axis=1, mode="wrap")[:3, None, :]
+            dr = d32.take(ray, axis=1, mode="wrap")[:, None, :]
             h = dr[0] * oc[0]
             h += dr[1] * oc[1]
             h += dr[2] * oc[2]
@@ -578,7 +578,7 @@ class BVH:
             oc *= oc
             candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
             candidate &= h - reach <= to_beat.take(ray)
-            slot = np.flatnonzero(candidate)  # j * P + pair for primitive j of pair's leaf
+            slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
             pair = slot % ray.size
             prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))  # slot j of node k at j * K + k
             return slot, pair, prim
@@ -604,22 +604,22 @@ class BVH:
             # fail the test (a real box is never NaN on all three axes: its planes differ on each)
             else:
                 b = gather_columns(self.leaf_boxes32, node).reshape(2, 3, self.leaf_size, -1)  # lo/hi, axis, slot, pair
-                r = np.take(rays, ray, axis=1, mode="wrap")[:, None, :]
+                r = rays.take(ray, axis=1, mode="wrap")[:, None, :]
                 b -= r[:3]
                 b *= r[3:]
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
                 entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), floor)
                 leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
-                slot = np.flatnonzero(entry <= leave)  # j * P + pair for primitive j of pair's leaf
+                slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
                 pair = slot % ray.size
                 row = slot // ray.size * k + node.take(pair)  # slot j of node k at j * K + k
                 if self.leaf_planes32 is not None:
                     # the plane pass: keep the slots whose ray crosses (to within the margin)
                     # its triangle's plane between entering and leaving its box
-                    plane = np.take(self.leaf_planes32, row, axis=0)  # (S, 4): n / m, c / m
+                    plane = self.leaf_planes32.take(row, axis=0)  # (S, 4): n / m, c / m
                     r = ray.take(pair)
-                    o32 = np.take(rays, r, axis=1, mode="wrap")
-                    dr = np.take(d32, r, axis=1, mode="wrap")
+                    o32 = rays.take(r, axis=1, mode="wrap")
+                    dr = d32.take(r, axis=1, mode="wrap")
                     at_origin = plane[:, 0] * o32[0]
                     at_origin += plane[:, 1] * o32[1]
                     at_origin += plane[:, 2] * o32[2]
@@ -633,13 +633,13 @@ class BVH:
                     s1 += at_origin
                     # NaN (no plane) compares false: kept
                     apart = (np.minimum(s0, s1) > 1) | (np.maximum(s0, s1) < -1)
-                    near_plane = np.flatnonzero(~apart)
+                    near_plane = (~apart).nonzero()[0]
                     slot, pair, row = slot.take(near_plane), pair.take(near_plane), row.take(near_plane)
                 prim = self.leaf_primitive.take(row)
             ray = ray.take(pair)
             t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1),
                                         None if time is None else time.take(ray))
-            ok = np.flatnonzero(is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray)))
+            ok = (is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray))).nonzero()[0]
             ray, t, prim = ray.take(ok), t.take(ok), prim.take(ok)
             if any_hit:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
@@ -663,14 +663,14 @@ class BVH:
                 # arithmetic after it runs on contiguous pair-minor rows with each ray's
                 # numbers broadcast along them: on the gathered (P, R) rows themselves the
                 # reductions over planes ran strided, 1 ns an element against 0.13
-                rows = np.take(table, node, axis=0, mode="wrap")
+                rows = table.take(node, axis=0, mode="wrap")
                 columns = np.empty(rows.shape[::-1], dtype=rows.dtype)
                 np.copyto(columns, rows.T)
                 return columns
         else:
             def gather_columns(table, node):
                 """``table``'s columns ``node``: (R, P) from a (R, K) table."""
-                return np.take(table, node, axis=1, mode="wrap")
+                return table.take(node, axis=1, mode="wrap")
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
@@ -693,10 +693,10 @@ class BVH:
                 pairs = ray.size
                 levels = min(STEP_LEVELS, last - depth) if self.node_major else 1
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
-                r = np.take(rays, ray, axis=1, mode="wrap")
+                r = rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
                 if top is not None and (2 << depth) - 1 <= top.shape[1]:  # every node of the depth is in it
-                    t = np.take(top, node, axis=1, mode="wrap").reshape(1 << levels, 2, 3, pairs)
+                    t = top.take(node, axis=1, mode="wrap").reshape(1 << levels, 2, 3, pairs)
                 elif levels > 1:
                     t = gather_columns(self.descendant_boxes[levels], node).reshape(1 << levels, 2, 3, pairs)
                 else:
@@ -709,7 +709,7 @@ class BVH:
                     t = t[:, 0], t[:, 1]
                 entry = np.fmax(np.fmax(np.fmax(t[0][:, 0], t[0][:, 1]), t[0][:, 2]), floor)
                 leave = np.fmin(np.fmin(np.fmin(t[1][:, 0], t[1][:, 1]), t[1][:, 2]), to_beat.take(ray))
-                keep = np.flatnonzero(entry <= leave)  # <=: keep ties; left children first, then right
+                keep = (entry <= leave).ravel().nonzero()[0]  # <=: keep ties; left children first, then right
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
                 ray = ray.take(keep, mode="wrap")
@@ -732,12 +732,12 @@ class BVH:
                     inner = None
                 else:
                     is_leaf = self.octant_is_leaf.take(node)
-                    leaf = np.flatnonzero(is_leaf)
+                    leaf = is_leaf.nonzero()[0]
                     inner = None
                     if leaf.size:
                         test_leaves(ray.take(leaf), node.take(leaf) % k, entry.ravel().take(keep.take(leaf)),
                                     rays_walking)  # column -> node
-                        inner = np.flatnonzero(~is_leaf)
+                        inner = (~is_leaf).nonzero()[0]
                         ray, node = ray.take(inner), node.take(inner)
                 if depth == stop:
                     entry = entry.ravel().take(keep)
@@ -764,9 +764,9 @@ class BVH:
                     np.minimum.at(first, ray, entry)
                     now = entry <= first.take(ray)
                     walk(ray[now], node[now], self.subtree_depth, rays_walking=np.count_nonzero(first < np.inf))
-                    later = np.flatnonzero(~now)
+                    later = (~now).nonzero()[0]
                     ray, node, entry = ray.take(later), node.take(later), entry.take(later)
-                    alive = np.flatnonzero(entry <= to_beat.take(ray))
+                    alive = (entry <= to_beat.take(ray)).nonzero()[0]
                     ray, node, entry = ray.take(alive), node.take(alive), entry.take(alive)
         best_t[ray_ids] = nearest
         # walk and test_slots call themselves (parts, for bounded memory), so each closure holds
