@@ -48,7 +48,9 @@ octant, so the slab test needs no min/max of its two planes per axis, and a
 pair's node index carries its octant with it.  Big trees (node-major) store
 one table, a node's boxes in one row: gathered rows are copied to pair-minor
 columns so that the arithmetic runs on contiguous rows, where a min/max per
-axis costs less than eight times the tables' cache footprint.
+axis costs less than eight times the tables' cache footprint.  Their top
+(:data:`TOP_NODES`), which stays in cache, is also stored one row per plane,
+and its levels gather columns directly, without that copy.
 """
 
 from __future__ import annotations
