@@ -48,7 +48,9 @@ octant, so the slab test needs no min/max of its two planes per axis, and a
 pair's node index carries its octant with it.  Big trees (node-major) store
 one table, a node's boxes in one row: gathered rows are copied to pair-minor
 columns so that the arithmetic runs on contiguous rows, where a min/max per
-axis costs less than eight times the tables' cache footprint.
+axis costs less than eight times the tables' cache footprint.  Their top
+(:data:`TOP_NODES`), which stays in cache, is also stored one row per plane,
+and its levels gather columns directly, without that copy.
 """
 
 from __future__ import annotations
@@ -133,6 +135,11 @@ OUTSIZED_SHARE = 1 / 64
 # gathers were two thirds of the traversal.  Small trees (W2: ~250 nodes) fit
 # in cache, where the row layout's contiguous arithmetic is faster.
 NODE_MAJOR_NODES = 1 << 14
+# ... but the top of a node-major tree, its first TOP_NODES nodes (all levels above depth 13),
+# is small enough to stay in cache whatever the tree: there its boxes are also stored one row
+# per plane, and a level's columns are gathered directly (in cache, a gathered column costs no
+# miss), without the transposed copy of gathered rows, which cost ~5x as much per box.
+TOP_NODES = (1 << 14) - 1
 # Node-major trees walk their subtrees of SUBTREE_LEVELS levels above the first leaves
 # each ray's nearest first, in SUBTREE_ROUNDS rounds (the last takes all that are left).
 # On the 1M-triangle terrain, intersection of bounce rays fell from ~4.4 to ~3.45 us per
@@ -302,7 +309,11 @@ class BVH:
         for j in range(self.leaf_size):
             has = self.count > j
             self.leaf_slot[j, has] = self.order.take(self.first[has] + j)
-        self.leaf_primitive = np.maximum(self.leaf_slot, 0).ravel()  # (leaf_size * K,): slot j of node k at j * K + k
+        # (K * leaf_size,): slot j of node k at k * leaf_size + j, a leaf's slots side by side, so the
+        # few slots of a (ray, leaf) pair that pass the box test read one or two cache lines here and
+        # in the plane table (at j * K + k they lay K apart, a miss and often a TLB miss each: on
+        # the 1M terrain the plane pass cost ~10 % more)
+        self.leaf_primitive = np.maximum(self.leaf_slot, 0).T.ravel()
         self._build_traversal_tables(boxes.astype(np.float64))
 
     def _build_traversal_tables(self, boxes: np.ndarray) -> None:
@@ -366,6 +377,7 @@ class BVH:
         offset = np.arange(self.octants)[:, None] * k
         self.octant_left = (left + offset).ravel()  # the right child is the next column
         self.octant_is_leaf = np.tile(self.count > 0, self.octants)
+        self.top_boxes = {}  # levels stepped -> the first nodes' boxes as columns (see TOP_NODES)
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (K, 12)
             # Several levels at a step where all are full: node n's descendants `levels`
@@ -381,6 +393,10 @@ class BVH:
                 below = width * np.arange(inner)[:, None] + (width - 1) + np.arange(width)  # (inner, width)
                 self.descendant_boxes[levels] = np.ascontiguousarray(
                     np.stack((lo[:, below], hi[:, below])).transpose(2, 3, 0, 1).reshape(inner, 6 * width))
+            # the top of the tree as columns too (see TOP_NODES): {levels: (6 * 2^levels, top)}
+            self.top_boxes = {levels: np.ascontiguousarray(table[:TOP_NODES].T)
+                              for levels, table in self.descendant_boxes.items()}
+            self.top_boxes[1] = np.ascontiguousarray(self.octant_boxes[:TOP_NODES].T)
             if self.sphere_leaves:
                 self.leaf_rows32 = np.ascontiguousarray(np.concatenate(
                     (self.leaf_center32.reshape(3 * self.leaf_size, k), self.leaf_reach32)).T)  # (K, 4 leaf_size)
@@ -390,7 +406,7 @@ class BVH:
 
     def _plane_tables(self, tree_extent: float, pad: float) -> np.ndarray | None:
         """Each triangle slot's plane, scaled by its margin: ``(leaf_size * K, 4)``
-        float32 rows ``n / m, (n . v0) / m`` (slot j of node k at j * K + k), NaN
+        float32 rows ``n / m, (n . v0) / m`` (slot j of node k at k * leaf_size + j), NaN
         for other kinds and padding slots (NaN never drops a slot).
 
         The plane is the one the exact test sees (the stored v0, e1, e2); with it
@@ -402,7 +418,7 @@ class BVH:
         if not kinds:
             return None
         planes = np.full((self.leaf_slot.size, 4), np.nan, dtype=np.float32)
-        slot = self.leaf_slot.ravel()
+        slot = self.leaf_slot.T.ravel()
         kind_of = self.primitives.kind_of(np.maximum(slot, 0))
         for i, kind in kinds:
             sel = np.flatnonzero((slot >= 0) & (kind_of == i))
@@ -450,17 +466,19 @@ class BVH:
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
         # outsized primitives first: their hits bound the traversal (none: skip brute force's
         # passes over the rays, 6 % of a terrain's camera rays)
-        first = self.outsized_set.intersect(origin, direction, t_max, time) if len(self.outsized) else None
+        # (one call of brute force's own: a batch is at most TRAVERSAL_BATCH rays against at most
+        # MAX_OUTSIZED primitives, which its chunks of rays would only split into more calls)
+        first = self.outsized_set._intersect(origin, direction, t_max, time) if len(self.outsized) else None
         best_t = limit.copy() if first is None else np.minimum(first.t, limit)
         found = self._traverse(origin, direction, limit, best_t, time=time)  # lowers best_t to the tree's hits
         none = len(self.primitives)  # sentinel above every index, so np.minimum keeps real ones
         best_idx = np.full(n, none, dtype=np.int64)
         if first is not None:
-            from_first = np.flatnonzero((first.primitive_idx >= 0) & (first.t == best_t))
+            from_first = ((first.primitive_idx >= 0) & (first.t == best_t)).nonzero()[0]
             best_idx[from_first] = self.outsized.take(first.primitive_idx.take(from_first))
         if found:
             ray, t, prim = (np.concatenate(a) for a in zip(*found))
-            winner = np.flatnonzero(t == best_t.take(ray))
+            winner = (t == best_t.take(ray)).nonzero()[0]
             # ties go to the lowest primitive index, as in brute force
             np.minimum.at(best_idx, ray.take(winner), prim.take(winner))
         missed = best_idx == none
@@ -470,9 +488,9 @@ class BVH:
     def _occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         n = origin.shape[1]
         limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        blocked = self.outsized_set.occluded(origin, direction, limit, time) if len(self.outsized_set) else \
+        blocked = self.outsized_set._occluded(origin, direction, limit, time) if len(self.outsized_set) else \
             np.zeros(n, dtype=bool)
-        rest = np.flatnonzero(~blocked)
+        rest = (~blocked).nonzero()[0]
         if rest.size:
             o, d, lim = origin.take(rest, axis=1), direction.take(rest, axis=1), limit.take(rest)
             found = self._traverse(o, d, lim, lim.copy(), any_hit=True, time=None if time is None else time.take(rest))
@@ -498,7 +516,7 @@ class BVH:
         lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
         near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
         far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
-        ray_ids = np.flatnonzero((near <= far) & (far >= T_MIN) & (near <= best_t))
+        ray_ids = ((near <= far) & (far >= T_MIN) & (near <= best_t)).nonzero()[0]
         if ray_ids.size == 0:
             return []
         # from here on per-ray arrays are indexed by position in ray_ids
@@ -536,12 +554,12 @@ class BVH:
                     np.minimum.at(first, ray, entry)
                     now = entry <= first.take(ray)
                     test_slots(ray[now], node[now])
-                    later = np.flatnonzero(~now)
+                    later = (~now).nonzero()[0]
                 else:
                     test_slots(ray, node)
                     break
                 ray, node, entry = ray.take(later), node.take(later), entry.take(later)
-                alive = np.flatnonzero(entry <= to_beat.take(ray))
+                alive = (entry <= to_beat.take(ray)).nonzero()[0]
                 if alive.size == 0:
                     break
                 ray, node, entry = ray.take(alive), node.take(alive), entry.take(alive)
@@ -555,10 +573,10 @@ class BVH:
                 rows = gather_columns(self.leaf_rows32, node)  # (4 leaf_size, P)
                 center, reach = rows[:3 * self.leaf_size].reshape(3, self.leaf_size, -1), rows[3 * self.leaf_size:]
             else:
-                center = np.take(self.leaf_center32, node, axis=2, mode="wrap")  # (3, leaf_size, P)
-                reach = np.take(self.leaf_reach32, node, axis=1, mode="wrap")  # padded radius
-            oc = center - np.take(rays, ray, axis=1, mode="wrap")[:3, None, :]
-            dr = np.take(d32, ray, axis=1, mode="wrap")[:, None, :]
+                center = self.leaf_center32.take(node, axis=2, mode="wrap")  # (3, leaf_size, P)
+                reach = self.leaf_reach32.take(node, axis=1, mode="wrap")  # padded radius
+            oc = center - rays.take(ray, axis=1, mode="wrap")[:3, None, :]
+            dr = d32.take(ray, axis=1, mode="wrap")[:, None, :]
             h = dr[0] * oc[0]
             h += dr[1] * oc[1]
             h += dr[2] * oc[2]
@@ -566,9 +584,9 @@ class BVH:
             oc *= oc
             candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
             candidate &= h - reach <= to_beat.take(ray)
-            slot = np.flatnonzero(candidate)  # j * P + pair for primitive j of pair's leaf
+            slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
             pair = slot % ray.size
-            prim = self.leaf_primitive.take(slot // ray.size * k + node.take(pair))  # slot j of node k at j * K + k
+            prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + slot // ray.size)  # slot j of node k
             return slot, pair, prim
 
         def test_slots(ray, node):
@@ -592,22 +610,22 @@ class BVH:
             # fail the test (a real box is never NaN on all three axes: its planes differ on each)
             else:
                 b = gather_columns(self.leaf_boxes32, node).reshape(2, 3, self.leaf_size, -1)  # lo/hi, axis, slot, pair
-                r = np.take(rays, ray, axis=1, mode="wrap")[:, None, :]
+                r = rays.take(ray, axis=1, mode="wrap")[:, None, :]
                 b -= r[:3]
                 b *= r[3:]
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
                 entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), floor)
                 leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
-                slot = np.flatnonzero(entry <= leave)  # j * P + pair for primitive j of pair's leaf
+                slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
                 pair = slot % ray.size
-                row = slot // ray.size * k + node.take(pair)  # slot j of node k at j * K + k
+                row = node.take(pair) * self.leaf_size + slot // ray.size  # slot j of node k at k * leaf_size + j
                 if self.leaf_planes32 is not None:
                     # the plane pass: keep the slots whose ray crosses (to within the margin)
                     # its triangle's plane between entering and leaving its box
-                    plane = np.take(self.leaf_planes32, row, axis=0)  # (S, 4): n / m, c / m
+                    plane = self.leaf_planes32.take(row, axis=0)  # (S, 4): n / m, c / m
                     r = ray.take(pair)
-                    o32 = np.take(rays, r, axis=1, mode="wrap")
-                    dr = np.take(d32, r, axis=1, mode="wrap")
+                    o32 = rays.take(r, axis=1, mode="wrap")
+                    dr = d32.take(r, axis=1, mode="wrap")
                     at_origin = plane[:, 0] * o32[0]
                     at_origin += plane[:, 1] * o32[1]
                     at_origin += plane[:, 2] * o32[2]
@@ -621,13 +639,13 @@ class BVH:
                     s1 += at_origin
                     # NaN (no plane) compares false: kept
                     apart = (np.minimum(s0, s1) > 1) | (np.maximum(s0, s1) < -1)
-                    near_plane = np.flatnonzero(~apart)
+                    near_plane = (~apart).nonzero()[0]
                     slot, pair, row = slot.take(near_plane), pair.take(near_plane), row.take(near_plane)
                 prim = self.leaf_primitive.take(row)
             ray = ray.take(pair)
             t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1),
                                         None if time is None else time.take(ray))
-            ok = np.flatnonzero(is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray)))
+            ok = (is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray))).nonzero()[0]
             ray, t, prim = ray.take(ok), t.take(ok), prim.take(ok)
             if any_hit:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
@@ -651,14 +669,14 @@ class BVH:
                 # arithmetic after it runs on contiguous pair-minor rows with each ray's
                 # numbers broadcast along them: on the gathered (P, R) rows themselves the
                 # reductions over planes ran strided, 1 ns an element against 0.13
-                rows = np.take(table, node, axis=0, mode="wrap")
+                rows = table.take(node, axis=0, mode="wrap")
                 columns = np.empty(rows.shape[::-1], dtype=rows.dtype)
                 np.copyto(columns, rows.T)
                 return columns
         else:
             def gather_columns(table, node):
                 """``table``'s columns ``node``: (R, P) from a (R, K) table."""
-                return np.take(table, node, axis=1, mode="wrap")
+                return table.take(node, axis=1, mode="wrap")
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
@@ -681,8 +699,11 @@ class BVH:
                 pairs = ray.size
                 levels = min(STEP_LEVELS, last - depth) if self.node_major else 1
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
-                r = np.take(rays, ray, axis=1, mode="wrap")
-                if levels > 1:
+                r = rays.take(ray, axis=1, mode="wrap")
+                top = self.top_boxes.get(levels)
+                if top is not None and (2 << depth) - 1 <= top.shape[1]:  # every node of the depth is in it
+                    t = top.take(node, axis=1, mode="wrap").reshape(1 << levels, 2, 3, pairs)
+                elif levels > 1:
                     t = gather_columns(self.descendant_boxes[levels], node).reshape(1 << levels, 2, 3, pairs)
                 else:
                     t = gather_columns(self.octant_boxes, node).reshape(2, 2, 3, pairs)  # child, enter/leave, axis
@@ -694,7 +715,7 @@ class BVH:
                     t = t[:, 0], t[:, 1]
                 entry = np.fmax(np.fmax(np.fmax(t[0][:, 0], t[0][:, 1]), t[0][:, 2]), floor)
                 leave = np.fmin(np.fmin(np.fmin(t[1][:, 0], t[1][:, 1]), t[1][:, 2]), to_beat.take(ray))
-                keep = np.flatnonzero(entry <= leave)  # <=: keep ties; left children first, then right
+                keep = (entry <= leave).ravel().nonzero()[0]  # <=: keep ties; left children first, then right
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
                 ray = ray.take(keep, mode="wrap")
@@ -717,12 +738,12 @@ class BVH:
                     inner = None
                 else:
                     is_leaf = self.octant_is_leaf.take(node)
-                    leaf = np.flatnonzero(is_leaf)
+                    leaf = is_leaf.nonzero()[0]
                     inner = None
                     if leaf.size:
                         test_leaves(ray.take(leaf), node.take(leaf) % k, entry.ravel().take(keep.take(leaf)),
                                     rays_walking)  # column -> node
-                        inner = np.flatnonzero(~is_leaf)
+                        inner = (~is_leaf).nonzero()[0]
                         ray, node = ray.take(inner), node.take(inner)
                 if depth == stop:
                     entry = entry.ravel().take(keep)
@@ -749,9 +770,14 @@ class BVH:
                     np.minimum.at(first, ray, entry)
                     now = entry <= first.take(ray)
                     walk(ray[now], node[now], self.subtree_depth, rays_walking=np.count_nonzero(first < np.inf))
-                    later = np.flatnonzero(~now)
+                    later = (~now).nonzero()[0]
                     ray, node, entry = ray.take(later), node.take(later), entry.take(later)
-                    alive = np.flatnonzero(entry <= to_beat.take(ray))
+                    alive = (entry <= to_beat.take(ray)).nonzero()[0]
                     ray, node, entry = ray.take(alive), node.take(alive), entry.take(alive)
         best_t[ray_ids] = nearest
+        # walk and test_slots call themselves (parts, for bounded memory), so each closure holds
+        # a reference to itself: a cycle that kept every array of the call (rays, bounds, pair
+        # lists) alive until the garbage collector's next pass, and W2 rendered ~10 % slower
+        # (more memory touched, and the collector's passes).  Unset, they are freed on return.
+        walk = test_slots = None  # noqa: F841
         return found
