@@ -178,7 +178,9 @@ _KERNELS = ((("lambertian", "phong"), _lambertian), (("metal",), _metal), (("die
 
 def kernels_present(table):
     """(kind codes, kernel) for the kinds present in the scene only."""
-    present = set(np.unique(table.kind).tolist())
+    # a set of the (few) table rows, not np.unique: that imports numpy.ma on
+    # first use, ~10 ms of every worker's first task
+    present = set(table.kind.tolist())
     out = []
     for kinds, kernel in _KERNELS:
         codes = tuple(c for c in (table.code(k) for k in kinds) if c in present)
