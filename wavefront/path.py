@@ -272,13 +272,15 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     if esc_idx.size:
         scatter_add(radiance, live.slot.take(esc_idx),
                     gather(live.throughput, esc_idx) * cs.scene.background.radiance(gather(live.direction, esc_idx)))
-    # from here on only the hit rows matter: compact once
-    hit_idx = np.flatnonzero(hit) if esc_idx.size else np.arange(len(live))
-    live = live.take(hit_idx) if esc_idx.size else live
+    # from here on only the hit rows matter: compact once (if any escaped:
+    # in a closed room none do, and the hits are used as they are)
+    t, primitive_idx = hits.t, hits.primitive_idx
+    if esc_idx.size:
+        hit_idx = np.flatnonzero(hit)
+        live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
     if len(live) == 0:
         return live, None
-    surface = cs.shapes.surface(live.origin, live.direction, hits.t.take(hit_idx), hits.primitive_idx.take(hit_idx),
-                                uv=cs.materials.needs_uv, time=live.time)
+    surface = cs.shapes.surface(live.origin, live.direction, t, primitive_idx, uv=cs.materials.needs_uv, time=live.time)
     return live, surface
 
 
