@@ -318,3 +318,54 @@ def test_an_emitter_of_astronomical_power_is_still_sampled():
                   materials={"lamp": Emissive((1e300, 1e300, 1e300)), "floor": Lambertian()}, width=4, height=4)
     table = scene.compile().emitters
     assert np.isfinite(table.pmf).all() and np.isclose(table.pmf.sum(), 1.0)
+
+
+# -- float32: a float32 render samples its sphere lamps in float32 (lights.py's error argument)
+
+def in_float32(center, radius, ref, u):
+    """sample_sphere run on float32 inputs, its outputs widened for the checks."""
+    f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
+    point, normal, pdf = sample_sphere(f32(center), f32(radius), f32(ref), f32(u))
+    assert point.dtype == normal.dtype == pdf.dtype == np.float32
+    return point.astype(np.float64), normal.astype(np.float64), pdf.astype(np.float64)
+
+
+@pytest.mark.parametrize("radius, ref", [(RADIUS, REF), (0.05, (0.1, 0.4, -60.0))], ids=["cone", "small cone"])
+def test_float32_sphere_samples_are_uniform_in_the_cone_with_the_exact_pdf(radius, ref):
+    """The float32 sampler passes the float64 sampler's chi-square test, and its
+    pdf is 1 / (2 pi (1 - cos theta_max)) to float32 rounding, small cones too
+    (which it samples in float64)."""
+    pvalue, point, normal, pdf, one_minus_cos_max = cone_pvalue(in_float32, radius=radius, ref=ref)
+    assert pvalue > ACCEPT
+    c = column(*CENTER)
+    np.testing.assert_allclose(np.linalg.norm(point - c, axis=0), radius, rtol=1e-5 * np.linalg.norm(CENTER) / radius)
+    np.testing.assert_allclose(pdf, 1 / (2 * np.pi * one_minus_cos_max), rtol=1e-6)
+
+
+def naive_float32_pdf(center, radius, ref, u):
+    """A plausible bug: float64's 1 - sqrt(1 - sin^2 theta_max) run in float32 (it cancels)."""
+    point, normal, _ = in_float32(center, radius, ref, u)
+    d2 = np.sum((center - ref) ** 2, axis=0).astype(np.float32)
+    sin2 = np.float32(radius) ** 2 / d2
+    return point, normal, (1 / (2 * np.pi * (np.float32(1) - np.sqrt(np.float32(1) - sin2)))).astype(np.float64)
+
+
+def test_negative_control_float32_pdf_without_the_stable_form_is_rejected():
+    _, _, _, pdf, one_minus_cos_max = cone_pvalue(naive_float32_pdf, radius=0.05, ref=(0.1, 0.4, -60.0), n=1000)
+    assert not np.allclose(pdf, 1 / (2 * np.pi * one_minus_cos_max), rtol=1e-6)
+
+
+def test_float32_small_cone_rows_do_not_depend_on_their_batch():
+    """Small cones are sampled in float64 row by row: a row's numbers are the
+    same alone and in a batch with rows of either kind (images must not
+    depend on the chunk size)."""
+    n = 64
+    rng = np.random.default_rng(5)
+    ref = np.where(rng.random(n) < 0.5, tile(REF, n), tile((0.1, 0.4, -60.0), n)).astype(np.float32)
+    c, r = tile(CENTER, n).astype(np.float32), np.full(n, 0.05, dtype=np.float32)
+    u = rng.random((2, n)).astype(np.float32)
+    together = sample_sphere(c, r, ref, u)
+    for i in range(0, n, 7):
+        alone = sample_sphere(c[:, i:i + 1], r[i:i + 1], ref[:, i:i + 1], u[:, i:i + 1])
+        for a, b in zip(alone, together):
+            np.testing.assert_array_equal(a[..., 0], b[..., i])
