@@ -49,34 +49,6 @@ SPHERE, QUAD, TRIANGLE = 0, 1, 2  # emitter kinds
 # Below sin^2(1.5 degrees) the cone's 1 - cos(theta_max) cancels in floating
 # point; pbrt-v4 switches to the small-angle series there (sin^2 / 2).
 SMALL_CONE_SIN2 = 0.00068523
-# Precision.  A float32 render (``precision: auto``) samples its sphere lamps
-# in float32 (~25 % of cornell_spheres' time was this arithmetic, in float64).
-# Each step's error, relative to what it feeds:
-# * ``1 - cos theta_max`` (the pdf's only variable) as ``sin^2 / (1 + cos)``,
-#   which does not cancel: a few ulp (1e-7) relative in any precision, where
-#   float64's ``1 - sqrt(1 - sin^2)`` in float32 would be off by up to
-#   eps / (1 - cos) = 1.7e-4 at the smallest cone below (a bias of the pdf).
-# * ``1 - cos theta = t`` is sampled directly and ``sin^2 theta = t (2 - t)``,
-#   so the radial distribution inside the cone is exact to a few ulp of
-#   itself, not of 1 (float64's ``1 - cos^2`` is off by 1.2e-7 absolute in
-#   float32: 1.7e-4 of the smallest cone's sin^2).
-# * the point: float32 rounding of ``center + radius normal`` moves it by
-#   ~6e-8 |point|, i.e. 6e-8 |point| / distance of the direction, against a
-#   cone half-angle of at least 1.5 degrees (0.026 rad) above the threshold:
-#   a 2e-6 (times |point| / distance) distortion inside a cone over which the
-#   pdf is constant.  The shadow ray was float32 before this change anyway.
-#   ``sin alpha = sqrt(1 - cos^2 alpha)`` snaps points within ~3e-4 radii of
-#   the pole facing the reference point to the pole (pbrt-v4, float32 by
-#   default, and Mitsuba's float32 variants run this very formula).
-# * the pdf in the light sample's MIS weight: the other weight (of the same
-#   light path found by scattering, ``emission_weight``) is computed in
-#   float64; the two sum to one within float32 rounding (1e-7 relative), and a
-#   pdf of at most 1 / (2 pi 3.4e-4) = 465 cannot overflow when squared.
-# Below SMALL_CONE_SIN2 (a lamp more than ~40 radii away) the float32 error
-# of the point grows like distance / radius against the cone, and pbrt's
-# series is float64's: those rows are sampled in float64 as before (and
-# rounded to float32).  Quads and triangles are sampled in float64 (their pdf,
-# ``distance^2 / cos``, overflows float32's square near grazing).
 # A triangle without file uv has the barycentrics (b1, b2) as its uv: corners (0, 0), (1, 0), (0, 1).
 _BARYCENTRIC_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[:, :, None]
 
@@ -90,7 +62,7 @@ class LightSample:
     shows the emitter's back (one-sided emission) or the pdf is zero.
     """
 
-    point: np.ndarray  # (3, N) on the emitter (float32 or float64: see sample_precision)
+    point: np.ndarray  # (3, N) on the emitter, float64
     direction: np.ndarray  # (3, N) unit, reference point -> point
     distance: np.ndarray  # (N,)
     pdf: np.ndarray  # (N,) solid angle, emitter choice included
@@ -201,14 +173,6 @@ class EmitterTable:
 
     # -- sampling ------------------------------------------------------------
 
-    def sample_precision(self, dtype) -> np.dtype:
-        """The dtype :meth:`sample` works in for reference points of ``dtype``:
-        float32 for a float32 render whose emitters are all spheres (see the
-        error argument at the top of this module), float64 otherwise."""
-        if np.dtype(dtype) == np.float32 and len(self) and self.kind.min() == self.kind.max() == SPHERE:
-            return np.dtype(np.float32)
-        return np.dtype(np.float64)
-
     def choose(self, u: np.ndarray) -> np.ndarray:
         """Emitter indices for uniforms ``u (N,)``, each with probability ``pmf``."""
         return np.minimum(np.searchsorted(self.cdf, u, side="right"), len(self) - 1)
@@ -223,16 +187,12 @@ class EmitterTable:
         u_choice : ndarray of shape (N,)
             Uniform choosing the emitter.
         u : ndarray of shape (2, N)
-            Uniforms choosing the point on it; float32 ones (drawn in
-            :meth:`sample_precision`) let a float32 render sample in float32.
+            Uniforms choosing the point on it.
         time : None or ndarray of shape (N,)
             The paths' times (where moving spheres are).
         """
-        # float32 only when the caller drew its uniforms in sample_precision
-        # (sample_lights does; the media's light samples stay float64 as they were)
-        dtype = self.sample_precision(reference.dtype) if u.dtype == np.float32 else np.dtype(np.float64)
-        ref = reference.astype(dtype, copy=False)
-        u = u.astype(dtype, copy=False)
+        ref = reference.astype(np.float64, copy=False)
+        u = u.astype(np.float64, copy=False)
         n = ref.shape[1]
         # one emitter (RTOW's scenes, cornell_spheres): every sample chooses
         # it, and the caller need not draw ``u_choice`` (None)
@@ -254,7 +214,7 @@ class EmitterTable:
                     point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
         direction = point - ref
         distance = np.sqrt(dot(direction, direction))
-        direction /= np.maximum(distance, np.finfo(direction.dtype).tiny)
+        direction /= np.maximum(distance, np.finfo(np.float64).tiny)
         front = dot(normal, direction) < 0.0  # the light faces the reference point
         single = len(self) == 1  # its one column broadcasts: no gathers per sample
         pdf *= self.pmf[0] if single else self.pmf.take(e)
@@ -264,8 +224,7 @@ class EmitterTable:
             self._texture(radiance, e, kind, point, normal, u)
             radiance *= lit
         else:
-            table = self.radiance[:, :1] if single else gather(self.radiance, e)
-            radiance = table.astype(pdf.dtype, copy=False) * lit
+            radiance = (self.radiance[:, :1] if single else gather(self.radiance, e)) * lit
         return LightSample(point, direction, distance, pdf, radiance)
 
     def _texture(self, radiance, e, kind, point, normal, u) -> None:
@@ -310,9 +269,8 @@ class EmitterTable:
         return center + self.velocity.take(e, axis=1) * time
 
     def _sample_spheres(self, e, ref, u, time=None):
-        center = self._centers(e, time).astype(ref.dtype, copy=False)
-        radius = (self.radius[:1] if len(self) == 1 else self.radius.take(e)).astype(ref.dtype, copy=False)
-        return sample_sphere(center, radius, ref, u)
+        return sample_sphere(self._centers(e, time), self.radius[:1] if len(self) == 1 else self.radius.take(e),
+                             ref, u)
 
     def _sample_flat(self, sampler, e, ref, u):
         corner, edge1, edge2, area, normal = self._columns(e, self.origin, self.edge1, self.edge2, self.area,
@@ -354,7 +312,7 @@ def area_to_solid_angle(pdf_area, reference, point, normal):
     """``pdf_area * distance^2 / |cos theta_light|`` (0 where the direction grazes the surface)."""
     d = point - reference
     distance_squared = dot(d, d)
-    cos_light = np.abs(dot(normal, d)) / np.sqrt(np.maximum(distance_squared, np.finfo(d.dtype).tiny))
+    cos_light = np.abs(dot(normal, d)) / np.sqrt(np.maximum(distance_squared, np.finfo(np.float64).tiny))
     with np.errstate(divide="ignore", invalid="ignore"):
         pdf = pdf_area * distance_squared / cos_light
     return np.where(cos_light > 0, pdf, 0.0)
@@ -389,16 +347,10 @@ def _cone(center, radius, reference):
     """Axis (unit, reference -> centre), distance, sin^2 and 1 - cos of the cone's half-angle."""
     axis = center - reference
     distance = np.sqrt(dot(axis, axis))
-    clamped = np.maximum(distance, np.finfo(axis.dtype).tiny)
+    clamped = np.maximum(distance, np.finfo(np.float64).tiny)
     axis /= clamped
     sin2_max = radius / clamped
     sin2_max *= sin2_max
-    if axis.dtype == np.float32:  # no cancellation (see Precision at the top); no series needed
-        one_minus_cos_max = np.maximum(0.0, 1.0 - sin2_max)
-        np.sqrt(one_minus_cos_max, out=one_minus_cos_max)
-        one_minus_cos_max += 1.0
-        np.divide(sin2_max, one_minus_cos_max, out=one_minus_cos_max)
-        return axis, distance, sin2_max, one_minus_cos_max
     small = sin2_max < SMALL_CONE_SIN2
     one_minus_cos_max = 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max))
     if small.any():  # rare (a lamp 40 radii away): the series only where it is needed
@@ -437,21 +389,13 @@ def sample_sphere(center, radius, reference, u):
     """
     axis, distance, sin2_max, one_minus_cos_max = _cone(center, radius, reference)
     small = sin2_max < SMALL_CONE_SIN2
-    single = axis.dtype == np.float32
-    if single:
-        # 1 - cos theta sampled directly: sin^2 theta = t (2 - t) does not cancel
-        one_minus_cos = one_minus_cos_max * u[0]
-        cos_theta = 1.0 - one_minus_cos
-        sin2_theta = 2.0 - one_minus_cos
-        sin2_theta *= one_minus_cos
-    else:
-        # the where only when some cone is small (both branches cost a pass each)
-        cos_theta = 1.0 - one_minus_cos_max * u[0]
-        if small.any():
-            cos_theta = np.where(small, np.sqrt(np.maximum(0.0, 1.0 - sin2_max * u[0])), cos_theta)
-        sin2_theta = 1.0 - cos_theta * cos_theta
-        if small.any():
-            sin2_theta = np.where(small, sin2_max * u[0], sin2_theta)
+    # the where only when some cone is small (both branches cost a pass each)
+    cos_theta = 1.0 - one_minus_cos_max * u[0]
+    if small.any():
+        cos_theta = np.where(small, np.sqrt(np.maximum(0.0, 1.0 - sin2_max * u[0])), cos_theta)
+    sin2_theta = 1.0 - cos_theta * cos_theta
+    if small.any():
+        sin2_theta = np.where(small, sin2_max * u[0], sin2_theta)
     with np.errstate(divide="ignore", invalid="ignore"):
         cos_alpha = sin2_theta / sin2_max
         np.subtract(1.0, cos_alpha, out=cos_alpha)
@@ -468,7 +412,7 @@ def sample_sphere(center, radius, reference, u):
     # the outward normal at the sampled point faces the reference point: -w in
     # the cone's frame, built row by row into one array (no (3, N) temporaries)
     along_x, along_y = sin_alpha * cos_phi, sin_alpha * sin_phi
-    normal = np.empty(axis.shape, dtype=axis.dtype)
+    normal = np.empty(axis.shape)
     for row, (xi, yi, zi) in enumerate(zip(x, y, axis)):
         out = normal[row]
         np.multiply(along_x, xi, out=out)
@@ -487,16 +431,6 @@ def sample_sphere(center, radius, reference, u):
         r = np.broadcast_to(radius, distance.shape).take(inside)
         pdf[inside] = area_to_solid_angle(1.0 / (4.0 * np.pi * r * r), gather(reference, inside),
                                           gather(point, inside), gather(normal, inside))
-    small_idx = np.flatnonzero(small) if single else ()
-    if len(small_idx):
-        # float32's error argument fails for small cones: these rows in float64
-        # as before (pbrt's series), rounded once to float32.  Row by row, not
-        # the whole batch: a row's numbers must not depend on its batch (the
-        # image is the same for any chunk size).
-        def f64(a):
-            return gather(np.broadcast_to(a, a.shape[:-1] + distance.shape), small_idx).astype(np.float64)
-        p, nrm, pd = sample_sphere(f64(center), f64(radius), f64(reference), f64(u))
-        point[:, small_idx], normal[:, small_idx], pdf[small_idx] = p, nrm, pd
     return point, normal, pdf
 
 

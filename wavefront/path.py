@@ -326,18 +326,6 @@ def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None
 def mis_weight(pdf_a, pdf_b):
     """The power heuristic (Veach 1997, 9.2.3, beta = 2): the weight of a
     sample drawn with density ``pdf_a`` when ``pdf_b`` could also have drawn it."""
-    if getattr(pdf_a, "dtype", None) == np.float32:
-        # float32 light samples (lights.py): a pdf past 1.8e19 (a tiny cone's,
-        # rounded from float64) overflows when squared; 1 / (1 + (b / a)^2) is
-        # the same weight to a few ulp and goes to its limits instead (1 as b / a
-        # -> 0, 0 as it -> inf)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            w = pdf_b / pdf_a
-            w *= w
-            w += 1.0
-            np.divide(1.0, w, out=w)
-        positive = pdf_a > 0
-        return w if positive.all() else np.where(positive, w, np.float32(0.0))
     a2 = pdf_a * pdf_a
     with np.errstate(invalid="ignore", divide="ignore"):
         w = a2 / (a2 + pdf_b * pdf_b)
@@ -385,33 +373,18 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     """
     rows = np.flatnonzero(diffuse & ~absorbed & (live.depth + 1 < max_depth))
     state, depth = live.state.take(rows), live.depth.take(rows)
-    # the precision the emitters are sampled in (float32 in a float32 render
-    # with sphere lamps: lights.py argues its error), and the uniforms drawn in it
-    dtype = emitters.sample_precision(cs.dtype)
-    u_point = sampler.pairs(state, light_point_dimension(depth), dtype)
+    u_point = sampler.pairs(state, light_point_dimension(depth))
     u_choice = light_choice(sampler, emitters, state, depth)
     point = gather(surface.point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(point, u_choice, u_point, time)
     normal = gather(surface.normal, rows)
-    # lambertian_pdf, in the samples' precision (it returns float64, which the
-    # scattered ray's recorded pdf needs: emission_weight compares it in float64)
-    p_material = dot(normal, light.direction)
-    np.maximum(p_material, 0.0, out=p_material)
-    p_material /= np.pi
+    p_material = lambertian_pdf(normal, light.direction)
     ok = np.flatnonzero((p_material > 0.0) & (light.radiance.max(axis=0) > 0.0))
     rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
     albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
-    # throughput * (albedo * p_material) * radiance * (w / pdf), left to right
-    # as before (the same float64 bits), in place: one (3, N) temporary less each
-    weight = mis_weight(pdf, p_material)
-    weight /= pdf
     f_cos = albedo * p_material  # lambertian_eval's value: its pdf is the one just taken
-    radiance = gather(light.radiance, ok)
-    contribution = gather(live.throughput, rows).astype(np.result_type(f_cos, radiance, weight), copy=False)
-    contribution *= f_cos
-    contribution *= radiance
-    contribution *= weight
+    contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
                        contribution=contribution, slot=live.slot.take(rows),
