@@ -43,7 +43,8 @@ def test_huge_walls_around_a_small_room_run_anchored_in_float32():
 
 
 @pytest.mark.parametrize("change", ["far camera", "tiny sphere", "far small sphere", "astronomic wall",
-                                    "moving sphere", "BVH-sized", "no huge sphere", "whitted"])
+                                    "moving sphere", "BVH-sized", "no huge sphere", "whitted", "ground of 1e5",
+                                    "huge lamp"])
 def test_hostile_scenes_keep_float64(change):
     """Everything but the huge spheres must pass the float32 rule on its own."""
     scene = cornell_spheres()
@@ -64,6 +65,11 @@ def test_hostile_scenes_keep_float64(change):
         scene = scene.replace(spheres=[*scene.spheres, *extra])
     elif change == "whitted":  # pixel centres: the horizon of a huge ground must not flip with rounding
         scene = scene.replace(render=dataclasses.replace(scene.render, integrator="whitted"))
+    elif change == "ground of 1e5":  # its horizon's hits land ~5e-3 off the surface in float32
+        scene = scene.replace(spheres=[Sphere((0.0, -1e5 - 1.0, 0.0), 1e5, white), *scene.spheres[5:]])
+    elif change == "huge lamp":  # the ceiling lights the room: its shadow rays' margin is below float32's error
+        scene = scene.replace(spheres=[*scene.spheres[:3], dataclasses.replace(scene.spheres[3], material="lamp"),
+                                       *scene.spheres[4:]])
     elif change == "no huge sphere":  # the walls at 300: everything fails the rule, nothing is huge
         scene = scene.replace(spheres=[Sphere((300.0, 0.0, 0.0), 2.0, white), *scene.spheres[5:]])
     assert precision_of(scene) == np.float64
