@@ -280,3 +280,26 @@ def test_a_signal_before_any_sample_is_finished_writes_nothing(tmp_path, monkeyp
     monkeypatch.setattr(render_module, "compile_within", signalled_while_compiling)
     status = cli.main(["render", str(SCENES / "three_spheres.yaml"), "-o", str(out), "--workers", "1"])
     assert status == 128 + signal.SIGTERM and out.read_bytes() == b"precious"
+
+
+
+def test_a_pool_whose_dead_worker_held_the_task_queue_lock_still_ends():
+    """An idle pool worker waits for a task holding the task queue's read
+    lock; killed then, it dies holding it, and ``Pool.terminate()`` takes that
+    lock: replacing the pool must not wait for it for ever (checked by hand:
+    a plain ``terminate()`` here hangs)."""
+    import multiprocessing
+    import threading
+
+    from wavefront.render import _end_broken_pool
+
+    ctx = multiprocessing.get_context("fork")
+    pool = ctx.Pool(1)
+    assert pool.apply_async(os.getpid).get(10)  # the worker is up, now idle in the queue's read
+    time.sleep(0.2)
+    worker = pool._pool[0]
+    worker.kill()
+    worker.join(10)
+    ended = threading.Event()
+    threading.Thread(target=lambda: (_end_broken_pool(pool, ctx), ended.set()), daemon=True).start()
+    assert ended.wait(30)

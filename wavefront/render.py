@@ -548,6 +548,30 @@ class _WorkerWatch:
         return len(dead)
 
 
+def _end_broken_pool(pool, ctx) -> None:
+    """Terminate a pool one of whose workers died, however it died.
+
+    A worker killed while waiting for a task holds the task queue's read lock
+    for ever (a semaphore is not released with its holder), and one killed
+    while sending a result the result queue's write lock; ``Pool.terminate()``
+    takes both, so it would wait for ever (seen as a rare hang of the killed-
+    worker test).  So the pool's other workers are killed first (their tasks
+    run again in the new pool anyway) and the two locks replaced by fresh
+    ones, which no live process holds; workers the pool starts meanwhile get
+    the fresh ones.  Private API, as :class:`_WorkerWatch`.
+    """
+    for process in list(pool._pool):
+        if process.exitcode is None:
+            process.kill()
+    for process in list(pool._pool):
+        process.join(timeout=5)
+    pool._inqueue._rlock = ctx.Lock()
+    if getattr(pool._outqueue, "_wlock", None) is not None:
+        pool._outqueue._wlock = ctx.Lock()
+    pool.terminate()
+    pool.join()
+
+
 def _exit_cause(code: int) -> str:
     if code < 0:
         try:
@@ -607,8 +631,7 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
                     # took the pool's task-queue lock with it, so the pool is replaced
                     # whole.  A task's result depends on the task alone: every
                     # unfinished one is submitted again and the image is unchanged.
-                    pool.terminate()
-                    pool.join()
+                    _end_broken_pool(pool, ctx)
                     pool = start_pool()
                     watch.follow(pool)
                     for i, (task, result) in enumerate(pending):
