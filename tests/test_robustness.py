@@ -303,3 +303,35 @@ def test_a_pool_whose_dead_worker_held_the_task_queue_lock_still_ends():
     ended = threading.Event()
     threading.Thread(target=lambda: (_end_broken_pool(pool, ctx), ended.set()), daemon=True).start()
     assert ended.wait(30)
+
+
+def test_sigterm_ends_a_forked_child_that_still_has_the_commands_handler():
+    """A pool worker forked before its initializer resets the signal handlers
+    (the pool's replacement for a dead one) runs the command's handler: a
+    SIGTERM must still end it, or ``Pool.terminate()`` joins it for ever."""
+    from wavefront.cli import _Signals
+
+    handler = _Signals()
+    handler.rendering = True
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        pid = os.fork()
+        if pid == 0:  # the child: wait to be terminated
+            time.sleep(30)
+            os._exit(0)
+        time.sleep(0.1)
+        os.kill(pid, signal.SIGTERM)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            time.sleep(0.05)
+        else:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            pytest.fail("the child caught SIGTERM and went on")
+        assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGTERM
+        assert handler.stop is None  # the parent's render was not asked to stop
+    finally:
+        signal.signal(signal.SIGTERM, previous)

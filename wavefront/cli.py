@@ -187,8 +187,18 @@ class _Signals:
     def __init__(self):
         self.rendering = False
         self.stop = None  # the signal that asked the render to stop
+        self.pid = os.getpid()
 
     def __call__(self, signum, frame):
+        if os.getpid() != self.pid:
+            # A pool worker forked before its initializer reset the handlers
+            # (one the pool starts in place of a dead one, terminated at once):
+            # SIGTERM must end it, or Pool.terminate() waits for it for ever;
+            # an interrupt is the parent's to handle.
+            if signum == signal.SIGTERM:
+                signal.signal(signum, signal.SIG_DFL)
+                os.kill(os.getpid(), signum)
+            return
         if self.rendering and self.stop is None:
             self.stop = signum
             return

@@ -515,6 +515,7 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     return RenderResult(film, stats)
 
 
+BROKEN_POOL_SECONDS = 5.0  # the most a pool whose worker died is waited for before it is left behind
 POLL_SECONDS = 0.1  # how often a waiting parent checks for a stop request
 MAX_WORKER_DEATHS = 3  # past this, a render whose workers keep dying (out of memory?) gives up
 
@@ -554,22 +555,36 @@ def _end_broken_pool(pool, ctx) -> None:
     A worker killed while waiting for a task holds the task queue's read lock
     for ever (a semaphore is not released with its holder), and one killed
     while sending a result the result queue's write lock; ``Pool.terminate()``
-    takes both, so it would wait for ever (seen as a rare hang of the killed-
-    worker test).  So the pool's other workers are killed first (their tasks
-    run again in the new pool anyway) and the two locks replaced by fresh
-    ones, which no live process holds; workers the pool starts meanwhile get
-    the fresh ones.  Private API, as :class:`_WorkerWatch`.
+    takes both, and then joins every worker, including any the pool started
+    meanwhile in place of the dead one, which may be waiting on the dead one's
+    lock.  So the two locks are replaced by fresh ones, and while
+    ``terminate()`` runs every worker still running is killed (their tasks run
+    again in the new pool anyway); a ``terminate()`` that still has not
+    returned after ``BROKEN_POOL_SECONDS`` is left behind.  Private API, as
+    :class:`_WorkerWatch`.
     """
-    for process in list(pool._pool):
-        if process.exitcode is None:
-            process.kill()
-    for process in list(pool._pool):
-        process.join(timeout=5)
+    from multiprocessing.connection import wait
+
+    def kill_running() -> None:
+        processes = list(pool._pool)
+        ended = set(wait([p.sentinel for p in processes], 0))  # by sentinel: never signals a reaped pid
+        for p in processes:
+            if p.sentinel not in ended:
+                p.kill()
+
+    kill_running()
     pool._inqueue._rlock = ctx.Lock()
     if getattr(pool._outqueue, "_wlock", None) is not None:
         pool._outqueue._wlock = ctx.Lock()
-    pool.terminate()
-    pool.join()
+    ender = threading.Thread(target=pool.terminate, daemon=True)
+    ender.start()
+    deadline = time.monotonic() + BROKEN_POOL_SECONDS
+    while ender.is_alive() and time.monotonic() < deadline:
+        ender.join(0.2)
+        kill_running()
+    # A terminate() still waiting then (on a handler thread of the broken
+    # pool) is left behind: every worker of that pool is dead, and a daemon
+    # thread does not hold the command's exit.
 
 
 def _exit_cause(code: int) -> str:
