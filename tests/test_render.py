@@ -127,6 +127,13 @@ def test_a_small_render_is_shared_out_among_the_workers():
         tasks = list(plan_tasks(plan, capacity, workers=workers))
         assert [u for task in tasks for u in task] == list(plan)
         assert len(tasks) >= workers, (width, height, spp, workers)
+    # a share that fits in one task is one task (one tail a worker); a larger one is guided
+    from wavefront.render import TASK_WAVEFRONTS
+    for width, height, spp, workers in ((128, 128, 16, 2), (256, 256, 8, 2), (200, 100, 30, 3)):
+        plan = plan_units(width, height, spp)
+        assert plan.total_samples <= workers * TASK_WAVEFRONTS * capacity
+        assert len(list(plan_tasks(plan, capacity, workers=workers))) == workers, (width, height, spp, workers)
+    assert len(list(plan_tasks(plan_units(128, 128, 64), capacity, workers=2))) > 2
     # below a pool's start-up cost a render stays one task (inline)
     tiny = plan_units(128, 128, 1)
     assert tiny.total_samples <= SMALLEST_SHARED_TASK
