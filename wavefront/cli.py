@@ -177,8 +177,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# C0 and C1 control characters and DEL: a newline in a file name or YAML key
+# split a message into two lines (the second could pose as another error),
+# and ESC sequences in one drove the terminal
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+def _say(text: str) -> None:
+    """One line on standard error, control characters shown as escapes (``\\n``, ``\\x1b``)."""
+    print(_CONTROL.sub(lambda m: repr(m.group())[1:-1], text), file=sys.stderr)
+
+
 def _warn_line(message, category, filename, lineno, file=None, line=None):
-    print(f"wavefront: warning: {message}", file=sys.stderr)
+    _say(f"wavefront: warning: {message}")
 
 
 class _Signals:
@@ -218,10 +229,10 @@ def main(argv: list[str] | None = None) -> int:
         return _render(args, signals, started)
     except Interrupted as e:
         name = signal.Signals(e.signum).name
-        print(f"wavefront: interrupted ({name}); nothing was written", file=sys.stderr)
+        _say(f"wavefront: interrupted ({name}); nothing was written")
         return 128 + e.signum
     except KeyboardInterrupt:
-        print("wavefront: interrupted; nothing was written", file=sys.stderr)
+        _say("wavefront: interrupted; nothing was written")
         return 128 + signal.SIGINT
     finally:
         for sig, handler in previous.items():
@@ -323,6 +334,7 @@ def scene_inputs(scene) -> dict[str, str]:
     textures (nested in checkers too) and mesh files, media boundaries' included."""
     import dataclasses
 
+    from .shapes.mesh import referenced_files
     from .textures import Checker, ImageTexture
 
     files = {}
@@ -337,9 +349,13 @@ def scene_inputs(scene) -> dict[str, str]:
     for name, material in scene.materials.items():
         for f in dataclasses.fields(material):
             texture(getattr(material, f.name), f"materials.{name}.{f.name}")
-    files.update({f"meshes[{i}].file": m.file for i, m in enumerate(scene.meshes) if m.file})
-    files.update({f"media[{i}].boundary.mesh.file": m.boundary.file for i, m in enumerate(scene.media)
-                  if getattr(m.boundary, "file", "")})
+    meshes = [(f"meshes[{i}].file", m.file) for i, m in enumerate(scene.meshes) if m.file]
+    meshes += [(f"media[{i}].boundary.mesh.file", m.boundary.file) for i, m in enumerate(scene.media)
+               if getattr(m.boundary, "file", "")]
+    for path, file in meshes:
+        files[path] = file
+        for where, other in referenced_files(file).items():  # a glTF's .bin buffers and images
+            files[f"{path}, whose {os.path.basename(file)} names it in {where}"] = other
     return files
 
 
@@ -371,10 +387,10 @@ def _render(args, signals: _Signals, started: float) -> int:
         scene = _with_flags(scene, args)
         check_not_reading(scene, outputs + ([args.checkpoint] if args.checkpoint is not None else []))
     except (SceneError, OutputError) as e:
-        print(f"wavefront: error: {e}", file=sys.stderr)
+        _say(f"wavefront: error: {e}")
         return EXIT_BAD_INPUT
     except MemoryBudgetError as e:
-        print(f"wavefront: error: {e} (--memory)", file=sys.stderr)
+        _say(f"wavefront: error: {e} (--memory)")
         return EXIT_BAD_INPUT
     loaded = time.perf_counter()
 
@@ -383,9 +399,9 @@ def _render(args, signals: _Signals, started: float) -> int:
         from .distributed import SchedulerError, connect, dask_executor
 
         try:
-            client = connect(args.scheduler)
+            client = connect(args.scheduler, memory)
         except SchedulerError as e:
-            print(f"wavefront: error: {e}", file=sys.stderr)
+            _say(f"wavefront: error: {e}")
             return EXIT_BAD_INPUT
         executor = dask_executor(client)
         workers = max(1, len(client.scheduler_info().get("workers", {})))
@@ -416,20 +432,20 @@ def _render(args, signals: _Signals, started: float) -> int:
                                       resume=args.resume, executor=executor, compiled=compiled,
                                       output_bytes=encode_bytes(scene.width, scene.height, out))
             except (CheckpointError, OutputError) as e:
-                print(f"wavefront: error: {e}", file=sys.stderr)
+                _say(f"wavefront: error: {e}")
                 return EXIT_BAD_INPUT
             except MemoryBudgetError as e:
-                print(f"wavefront: error: {e} (--memory)", file=sys.stderr)
+                _say(f"wavefront: error: {e} (--memory)")
                 return EXIT_BAD_INPUT
             except RenderError as e:
-                print(f"wavefront: error: {e}; nothing was written", file=sys.stderr)
+                _say(f"wavefront: error: {e}; nothing was written")
                 return EXIT_FAILURE
             finally:
                 signals.rendering = False
             s = result.stats
             if s.units_done == 0 and signals.stop is not None:  # stopped before any unit finished: no image
-                print(f"wavefront: interrupted ({signal.Signals(signals.stop).name}) before any sample was "
-                      f"finished; nothing was written", file=sys.stderr)
+                _say(f"wavefront: interrupted ({signal.Signals(signals.stop).name}) before any sample was "
+                     f"finished; nothing was written")
                 return 128 + signals.stop
             metadata = {"Software": f"wavefront {_version()}", "wavefront.scene": scene.name,
                         "wavefront.seed": s.seed, "wavefront.samples_per_pixel": scene.render.samples_per_pixel,
@@ -447,11 +463,11 @@ def _render(args, signals: _Signals, started: float) -> int:
                 timing = Timing(load=loaded - started if k == 0 else 0.0, render=s.elapsed,
                                 write=time.perf_counter() - write_start,
                                 total=process_age(time.perf_counter() - started))
-                print(summary_line(frame_scene, s, written, timing), file=sys.stderr)
+                _say(summary_line(frame_scene, s, written, timing))
             if failure is not None or s.checkpoint_error is not None:
                 for message in (failure, s.checkpoint_error):
                     if message is not None:
-                        print(f"wavefront: error: {message}", file=sys.stderr)
+                        _say(f"wavefront: error: {message}")
                 return EXIT_BAD_INPUT
             if signals.stop is not None:
                 return 128 + signals.stop  # the shell's convention for "ended by this signal"

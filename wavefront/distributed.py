@@ -21,14 +21,22 @@ from .render import POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute, t
 from .sampling import scene_key
 
 CONNECT_TIMEOUT = "5s"  # an address that does not answer is reported within seconds
+# A local Dask worker is a process of its own: 63 MiB at rest, measured
+# (interpreter, NumPy, Dask), before it holds a scene or a wavefront.
+LOCAL_WORKER_BYTES = 64 * 1024 * 1024
 
 
 class SchedulerError(ConnectionError):
     """The scheduler could not be reached or started."""
 
 
-def connect(scheduler: str):
-    """A ``Client`` for ``tcp://host:port`` or ``local:N`` (a LocalCluster of N processes)."""
+def connect(scheduler: str, memory: int | None = None):
+    """A ``Client`` for ``tcp://host:port`` or ``local:N`` (a LocalCluster of
+    N processes, at most as many as ``memory`` bytes hold at
+    ``LOCAL_WORKER_BYTES`` each: ``local:99999999999999999999`` grew to 14
+    GB building its table of workers).  Anything that goes wrong while
+    connecting is a :class:`SchedulerError` (a port answering in another
+    protocol made Dask try to allocate 3 EiB)."""
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError:
@@ -40,6 +48,10 @@ def connect(scheduler: str):
                 raise ValueError
         except ValueError:
             raise SchedulerError(f"{scheduler}: expected local:N with N >= 1 workers") from None
+        if memory is not None and n * LOCAL_WORKER_BYTES > memory:
+            raise SchedulerError(f"{scheduler}: {n} local workers need at least {LOCAL_WORKER_BYTES >> 20} MiB each, "
+                                 f"more than the memory budget of {memory >> 20} MiB (--memory) holds; "
+                                 f"at most local:{max(1, memory // LOCAL_WORKER_BYTES)}")
         import logging
 
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
@@ -47,8 +59,9 @@ def connect(scheduler: str):
         return Client(cluster)
     try:
         return Client(scheduler, timeout=CONNECT_TIMEOUT)
-    except (OSError, TimeoutError, ValueError) as e:
-        raise SchedulerError(f"{scheduler}: cannot connect to the Dask scheduler ({e})") from None
+    except Exception as e:  # noqa: BLE001 (Dask's comm layers raise many types: TypeError for tls:// without a context)
+        text = (str(e).splitlines() or [type(e).__name__])[0][:200]
+        raise SchedulerError(f"{scheduler}: cannot connect to the Dask scheduler ({text})") from None
 
 
 _COMPILED: dict = {}

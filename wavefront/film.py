@@ -167,6 +167,7 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
     if not stat.S_ISREG(mode):
         raise CheckpointError(f"{path}: not a regular file")
     import zipfile  # only resuming needs it (np.savez imports it itself when saving)
+    import zlib
 
     expected = {"fingerprint": None, "units_done": ((), np.dtype(np.int64)),
                 "sum": ((3, scene.width * scene.height), np.dtype(np.float64)),
@@ -193,9 +194,21 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
                     arrays[name] = np.lib.format.read_array(f, allow_pickle=False)
     except CheckpointError:
         raise
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile) as e:
-        raise CheckpointError(f"{path}: not a wavefront checkpoint ({e})") from None
+    # zipfile reports a damaged or unusual archive with many types: zlib.error
+    # for a corrupt deflate stream, NotImplementedError for an unknown
+    # compression method, RuntimeError for an encrypted member
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error,
+            NotImplementedError, RuntimeError) as e:
+        text = (str(e).splitlines() or [type(e).__name__])[0][:200]
+        raise CheckpointError(f"{path}: not a wavefront checkpoint ({text})") from None
     units_done = int(arrays["units_done"])
     if not 0 <= units_done <= units_total:
         raise CheckpointError(f"{path}: not a wavefront checkpoint (units_done {units_done} out of range)")
+    # a film's sums are of radiance (finite, never negative) and no pixel has
+    # more samples than the render gives it: anything else would reach the image
+    if not (np.isfinite(arrays["sum"]).all() and (arrays["sum"] >= 0.0).all()):
+        raise CheckpointError(f"{path}: not a wavefront checkpoint (its pixel sums are not all finite and >= 0)")
+    if arrays["count"].size and int(arrays["count"].max()) > scene.render.samples_per_pixel:
+        raise CheckpointError(f"{path}: not a wavefront checkpoint (a pixel has more samples than "
+                              f"{scene.render.samples_per_pixel} per pixel)")
     return Film(scene.width, scene.height, arrays["sum"], arrays["count"]), units_done  # no second copy

@@ -590,7 +590,7 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         quads.extend(box.quads())
     triangles = _shapes(source, top.get("triangles"), "triangles", Triangle, defined)
     meshes = _meshes(source, top.get("meshes"), defined, memory)
-    media = _media(source, top.get("media"), memory)
+    media = _media(source, top.get("media"), memory, faces=sum(m.faces.shape[0] for m in meshes))
 
     lights_doc = top.get("lights") or []
     if not isinstance(lights_doc, list):
@@ -751,15 +751,7 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
         except SceneError as e:
             raise e.within(source, path) from None
         file = os.path.join(base, name)
-        if memory is not None:
-            with contextlib.suppress(OSError):  # a missing file is read_mesh's to report
-                refuse_unless_fits(memory, max(MESH_LOAD_BYTES_PER_FILE_BYTE * os.stat(file).st_size,
-                                               MESH_LOAD_BYTES_PER_TRIANGLE * mesh_files.declared_triangles(file)),
-                                   f"{source}: {path}.file: loading {file}")
-        try:
-            data = read_mesh(file, max_faces=mesh_files.MAX_MESH_FACES - total)
-        except MeshError as e:
-            raise SceneError(source, f"{path}.file", f"{file}: {e}") from None
+        data = _read_mesh_file(source, path, file, memory, mesh_files.MAX_MESH_FACES - total)
         total += data["faces"].shape[0]
         fields = {k: v for k, v in spec.items() if k != "file"}
         mesh = _build(source, path, Mesh, fields, vertices=data["vertices"], faces=data["faces"],
@@ -778,10 +770,11 @@ _BOUNDARY_KEYS = {"sphere": ({"center", "radius", "transform"}, {"center", "radi
 _BOUNDARY_MATERIAL = 0  # a boundary is never shaded; its shape's material field is a placeholder
 
 
-def _media(source: str, docs, memory: int | None = None) -> list[Medium]:
+def _media(source: str, docs, memory: int | None = None, faces: int = 0) -> list[Medium]:
     """``media``: ``{boundary: {sphere | box | mesh: ...}, density, albedo}``
     each (see :mod:`wavefront.media`); a mesh boundary's file is read as a
-    mesh's is, relative to the scene file, and must be closed."""
+    mesh's is, relative to the scene file, and must be closed.  ``faces``:
+    the scene's mesh faces so far (the face limit is for the whole scene)."""
     if docs is None:
         return []
     if not isinstance(docs, list):
@@ -804,7 +797,8 @@ def _media(source: str, docs, memory: int | None = None) -> list[Medium]:
         elif kind == "box":
             boundary = _build(source, where, Box, shape_doc, material=_BOUNDARY_MATERIAL)
         else:
-            boundary = _boundary_mesh(source, where, shape_doc, base, memory)
+            boundary = _boundary_mesh(source, where, shape_doc, base, memory, mesh_files.MAX_MESH_FACES - faces)
+            faces += boundary.faces.shape[0]
         fields = {k: v for k, v in spec.items() if k != "boundary"}
         try:
             medium = Medium(boundary=boundary, **fields)
@@ -816,7 +810,23 @@ def _media(source: str, docs, memory: int | None = None) -> list[Medium]:
     return media
 
 
-def _boundary_mesh(source: str, where: str, spec: dict, base: str, memory: int | None) -> Mesh:
+def _read_mesh_file(source: str, where: str, file: str, memory: int | None, max_faces: int) -> dict:
+    """:func:`read_mesh` of a mesh or boundary at YAML path ``where``: with a
+    ``memory`` budget, a file too big to load within it is refused before it
+    is read (:class:`MemoryBudgetError`), by its size and by the triangles a
+    glTF's instances declare; a problem names the scene file, ``where`` and the file."""
+    if memory is not None:
+        with contextlib.suppress(OSError):  # a missing file is read_mesh's to report
+            refuse_unless_fits(memory, max(MESH_LOAD_BYTES_PER_FILE_BYTE * os.stat(file).st_size,
+                                           MESH_LOAD_BYTES_PER_TRIANGLE * mesh_files.declared_triangles(file)),
+                               f"{source}: {where}.file: loading {file}")
+    try:
+        return read_mesh(file, max_faces=max_faces)
+    except MeshError as e:
+        raise SceneError(source, f"{where}.file", f"{file}: {e}") from None
+
+
+def _boundary_mesh(source: str, where: str, spec: dict, base: str, memory: int | None, max_faces: int) -> Mesh:
     """A medium's mesh boundary, read as :func:`_meshes` reads a mesh."""
     try:
         name = string(Mesh, spec["file"], "file")
@@ -824,13 +834,6 @@ def _boundary_mesh(source: str, where: str, spec: dict, base: str, memory: int |
     except SceneError as e:
         raise e.within(source, where) from None
     file = os.path.join(base, name)
-    if memory is not None:
-        with contextlib.suppress(OSError):
-            refuse_unless_fits(memory, MESH_LOAD_BYTES_PER_FILE_BYTE * os.stat(file).st_size,
-                               f"{source}: {where}.file: loading {file}")
-    try:
-        data = read_mesh(file)
-    except MeshError as e:
-        raise SceneError(source, f"{where}.file", f"{file}: {e}") from None
+    data = _read_mesh_file(source, where, file, memory, max_faces)
     return _build(source, where, Mesh, {"transform": spec.get("transform")}, vertices=data["vertices"],
                   faces=data["faces"], material=_BOUNDARY_MATERIAL, file=file, dropped=data["dropped"])

@@ -190,6 +190,7 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         declared = _gltf_triangles(doc)
         if declared > max_faces:
             raise MeshError(f"declares {declared} triangles (meshes and their instances); the limit is {max_faces}")
+        data = _without_images(data, doc, ext)
         options["resolver"] = _gltf_files(doc, os.path.dirname(path), max_bytes - len(data))
     data = _text_as_utf8(data, ext)
     try:
@@ -278,20 +279,72 @@ def declared_triangles(path: str) -> int:
     from its JSON alone, so that a small file instancing a mesh many times can
     be refused within a memory budget before trimesh builds them; 0 for other
     formats (their size bounds what they hold) and for what cannot be read."""
+    return _gltf_triangles(_gltf_json(path))
+
+
+def referenced_files(path: str) -> dict[str, str]:
+    """The files a glTF names by URI (its buffers, and its images, which are
+    never read), by where it names them (``images[0]``), so that no output of
+    the command replaces one; empty for other formats (read alone) and for
+    what cannot be read."""
+    from urllib.parse import unquote
+
+    doc, root, files = _gltf_json(path), os.path.dirname(path), {}
+    try:
+        for key in ("buffers", "images"):
+            for i, item in enumerate(doc.get(key, [])):
+                uri = item.get("uri")
+                if isinstance(uri, str) and not uri.startswith("data:"):
+                    files[f"{key}[{i}]"] = os.path.join(root, unquote(uri))
+    except (TypeError, AttributeError):
+        pass
+    return files
+
+
+def _gltf_json(path: str) -> dict | None:
+    """A glTF/GLB file's JSON read from the file, or None (another format, or unreadable)."""
     ext = os.path.splitext(path)[1].lower().lstrip(".")
     if ext not in ("glb", "gltf"):
-        return 0
+        return None
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, /dev/zero stream: read_mesh refuses them
-            return 0
+            return None
         with open(path, "rb") as f:
             if ext == "gltf":
-                return _gltf_triangles(_gltf_document(f.read(MAX_MESH_BYTES + 1), ext))
+                return _gltf_document(f.read(MAX_MESH_BYTES + 1), ext)
             head = f.read(20)
             length = int.from_bytes(head[12:16], "little")
-            return _gltf_triangles(_gltf_document(head + f.read(min(length, MAX_MESH_BYTES)), ext))
+            return _gltf_document(head + f.read(min(length, MAX_MESH_BYTES)), ext)
     except OSError:
-        return 0
+        return None
+
+
+def _without_images(data: bytes, doc: dict | None, ext: str) -> bytes:
+    """The glTF/GLB file ``data`` with no images, textures or samplers and
+    with materials that refer to none (edits ``doc`` to match).
+
+    wavefront takes a mesh's material from the scene, and trimesh decodes
+    every image a glTF holds or names while loading its materials: a 420 KB
+    PNG of 12000x12000 pixels took a render under ``--memory 256M`` to 1.2
+    GB.  The materials stay (as empty ones, so their indices hold): trimesh
+    reads a primitive's UVs only in its material's branch.
+    """
+    import json
+
+    if doc is None or not any(key in doc for key in ("images", "textures", "samplers", "materials")):
+        return data
+    materials = doc.get("materials")
+    for key in ("images", "textures", "samplers"):
+        doc.pop(key, None)
+    if isinstance(materials, list):
+        doc["materials"] = [{} for _ in materials]
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    if ext == "gltf":
+        return text
+    text += b" " * (-len(text) % 4)  # GLB chunks are 4-byte aligned, JSON padded with spaces
+    rest = data[20 + int.from_bytes(data[12:16], "little"):]
+    total = 12 + 8 + len(text) + len(rest)
+    return data[:8] + total.to_bytes(4, "little") + len(text).to_bytes(4, "little") + b"JSON" + text + rest
 
 
 def _gltf_document(data: bytes, ext: str) -> dict | None:
@@ -340,19 +393,18 @@ def _gltf_triangles(doc: dict | None) -> int:
 
 
 def _gltf_files(doc: dict | None, directory: str, budget: int) -> dict[str, bytes]:
-    """The files a glTF names by URI (its ``.bin`` buffers, its images), read
-    for trimesh, which is given the file's bytes and so cannot find them
-    itself: only regular files inside the glTF's directory (trimesh's own
-    rule), at most ``budget`` bytes in all.  A URI that cannot be read is
-    left out (trimesh then reports it, or skips an image)."""
+    """The buffers a glTF names by URI (its ``.bin`` files), read for
+    trimesh, which is given the file's bytes and so cannot find them itself:
+    only regular files inside the glTF's directory (trimesh's own rule), at
+    most ``budget`` bytes in all.  (Images are gone: :func:`_without_images`.)"""
     from urllib.parse import unquote
 
     files, root = {}, os.path.realpath(directory or ".")
     try:
-        uris = [(key, item.get("uri")) for key in ("buffers", "images") for item in doc.get(key, [])]
+        uris = [item.get("uri") for item in doc.get("buffers", [])]
     except (TypeError, AttributeError):
         return files
-    for key, uri in uris:
+    for uri in uris:
         if not isinstance(uri, str) or uri.startswith("data:") or uri in files:
             continue
         try:
@@ -369,10 +421,7 @@ def _gltf_files(doc: dict | None, directory: str, budget: int) -> dict[str, byte
             budget -= len(files[uri])
             if budget < 0:
                 raise MeshError(f"refers to {uri!r}, which takes it past {MAX_MESH_BYTES} bytes")
-        except (MeshError, OSError, ValueError) as e:
-            if key == "images":  # only materials read images, and wavefront takes its material from the scene
-                files.pop(uri, None)
-                continue
+        except (OSError, ValueError) as e:
             if isinstance(e, MeshError):
                 raise
             raise MeshError(f"refers to {uri!r}, which cannot be read: {getattr(e, 'strerror', None) or e}") from None

@@ -1,0 +1,184 @@
+"""Hostile probes of the command and the loaders (session 5): each test is a
+defect a probe found, fixed with it."""
+
+import json
+import os
+import zipfile
+
+import numpy as np
+import pytest
+
+from wavefront import Camera, Lambertian, RenderSettings, Scene, Sphere
+from wavefront.film import CheckpointError, Film, load_checkpoint, save_checkpoint
+
+from .test_cli import run
+from .test_probe_14 import glb_instancing, write_scene
+
+trimesh = pytest.importorskip("trimesh")
+
+ONE_TRIANGLE = b"".join(np.array(v, dtype=np.float32).tobytes() for v in ((0, 0, -2), (1, 0, -2), (0, 1, -2)))
+UVS = np.array([(0, 0), (1, 0), (0, 1)], dtype=np.float32).tobytes()
+
+
+def textured_gltf(folder, buffer="model.bin", image="albedo.png"):
+    """A .gltf of one triangle with UVs, its buffer in ``buffer`` and a
+    material whose base colour texture is the file ``image`` (which is not
+    written: nothing may read it)."""
+    (folder / buffer).write_bytes(ONE_TRIANGLE + UVS)
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "material": 0}]}],
+           "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+           "textures": [{"source": 0, "sampler": 0}], "samplers": [{}], "images": [{"uri": image}],
+           "buffers": [{"uri": buffer, "byteLength": 60}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36},
+                           {"buffer": 0, "byteOffset": 36, "byteLength": 24}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                          "min": [0, 0, -2], "max": [1, 1, -2]},
+                         {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"}]}
+    (folder / "model.gltf").write_text(json.dumps(doc))
+    return folder / "model.gltf"
+
+
+def test_no_output_replaces_a_file_a_gltf_names(tmp_path):
+    """``-o albedo.png`` beside a glTF whose material names albedo.png
+    replaced it: only the .gltf itself counted as a file the scene reads, not
+    the buffers and images it names."""
+    textured_gltf(tmp_path, buffer="data.npy")
+    (tmp_path / "albedo.png").write_bytes(b"the user's texture")
+    scene = write_scene(tmp_path, "image: {width: 4, height: 4}\nmaterials: {m: {type: lambertian}}\n"
+                                  "meshes: [{file: model.gltf, material: m}]\n")
+    for name, where in (("albedo.png", "images[0]"), ("data.npy", "buffers[0]")):
+        before = (tmp_path / name).read_bytes()
+        r = run("render", scene, "-o", tmp_path / name, "--spp", 1)
+        assert r.returncode == 2 and f"model.gltf names it in {where}" in r.stderr, r.stderr
+        assert len(r.stderr.splitlines()) == 1 and (tmp_path / name).read_bytes() == before
+
+
+def test_a_gltf_image_is_never_decoded_and_its_uvs_are_kept(tmp_path, monkeypatch):
+    """trimesh decoded every image a glTF names or holds, though wavefront
+    takes materials from the scene: a 420 KB PNG of 12000x12000 pixels took a
+    render under --memory 256M to 1.2 GB.  The images are dropped before
+    trimesh reads the file; the UVs (read in trimesh's material branch) stay."""
+    import PIL.Image
+
+    from wavefront.shapes.mesh import read_mesh
+
+    opened = []
+    path = textured_gltf(tmp_path)
+    PIL.Image.new("RGB", (4, 4)).save(tmp_path / "albedo.png")
+    monkeypatch.setattr(PIL.Image, "open", lambda *args, **kwargs: opened.append(args))  # trimesh catches what follows
+    data = read_mesh(str(path))
+    assert opened == []
+    assert data["faces"].shape == (1, 3)
+    np.testing.assert_allclose(np.sort(data["uv"], axis=0), [(0, 0), (0, 1), (1, 1)])  # v flipped: 1 - v
+
+
+def test_a_glb_with_an_embedded_texture_keeps_its_triangles_and_uvs(tmp_path):
+    """The GLB is rewritten without its images (JSON chunk re-padded, lengths
+    updated): what trimesh builds from it is what it built before, less the texture."""
+    from PIL import Image
+
+    from wavefront.shapes.mesh import read_mesh
+
+    ball = trimesh.creation.icosphere(subdivisions=1)
+    uv = np.random.default_rng(1).random((len(ball.vertices), 2))
+    ball.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (8, 8), (200, 10, 10)))
+    path = tmp_path / "ball.glb"
+    path.write_bytes(trimesh.Scene(ball).export(file_type="glb"))
+    direct = trimesh.load(path, force="mesh", process=False)
+    data = read_mesh(str(path))
+    assert data["faces"].shape == (80, 3)
+    np.testing.assert_allclose(data["vertices"][data["faces"]], np.asarray(direct.vertices)[direct.faces], atol=1e-6)
+    np.testing.assert_allclose(data["uv"], np.asarray(direct.visual.uv), atol=1e-6)
+
+
+def test_a_medium_boundary_mesh_is_checked_against_the_budget_before_loading(tmp_path):
+    """A mesh boundary skipped the glTF-instance count of the budget check
+    and had a face limit of its own: a 127 KB GLB as a fog boundary reached
+    1.2 GB under --memory 256M."""
+    from wavefront import MemoryBudgetError, load_scene
+    from wavefront.memory import current_rss
+
+    glb_instancing(tmp_path / "many.glb", 3_200)
+    scene = write_scene(tmp_path, "materials: {w: {type: lambertian}}\n"
+                                  "spheres: [{center: [0, 0, -1], radius: 0.5, material: w}]\n"
+                                  "media: [{boundary: {mesh: {file: many.glb}}, density: 1}]\n")
+    with pytest.raises(MemoryBudgetError, match=r"media\[0\]\.boundary\.mesh\.file: loading .*many\.glb"):
+        load_scene(scene, memory=current_rss() + 300 * 2**20)
+
+
+def test_a_local_cluster_is_bounded_by_the_budget_and_bad_addresses_are_one_line(tmp_path):
+    """``local:99999999999999999999`` grew to 14 GB building Dask's table of
+    workers; ``tls://`` without a context and ``ucx://`` raised tracebacks."""
+    pytest.importorskip("dask.distributed")
+    from wavefront.distributed import SchedulerError, connect
+
+    with pytest.raises(SchedulerError, match="at most local:16"):
+        connect("local:99999999999999999999", memory=1 << 30)
+    with pytest.raises(SchedulerError, match="cannot connect"):
+        connect("tls://127.0.0.1:9")
+
+
+def checkpoint(tmp_path):
+    scene = Scene(materials={"m": Lambertian((0.5, 0.5, 0.5))}, spheres=[Sphere((0, 0, -1), 0.5, "m")],
+                  camera=Camera(), width=4, height=4, render=RenderSettings(samples_per_pixel=2))
+    film = Film(4, 4)
+    film.sum[:] = 1.0
+    film.count[:] = 2
+    path = str(tmp_path / "ck.npz")
+    save_checkpoint(path, scene, film, 1)
+    return scene, path
+
+
+def test_a_damaged_checkpoint_is_refused_in_one_line(tmp_path):
+    """A corrupt deflate stream (zlib.error), an unknown compression method
+    (NotImplementedError) and an encrypted member (RuntimeError) escaped as
+    tracebacks; pixel sums of NaN were resumed into an image of NaN."""
+    scene, path = checkpoint(tmp_path)
+    assert load_checkpoint(path, scene, 8)[1] == 1
+    with zipfile.ZipFile(path) as z:
+        members = {name: z.read(name) for name in z.namelist()}
+
+    def rewrite(name, **arrays):
+        out = str(tmp_path / name)
+        with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as z:
+            for member, data in members.items():
+                z.writestr(member, data)
+        if arrays:
+            np.savez(out, **{**{k[:-4]: np.load(path)[k[:-4]] for k in members}, **arrays})
+        return out
+
+    nan = np.full((3, 16), np.nan)
+    with pytest.raises(CheckpointError, match="not all finite"):
+        load_checkpoint(rewrite("nan.npz", sum=nan), scene, 8)
+    with pytest.raises(CheckpointError, match="more samples"):
+        load_checkpoint(rewrite("count.npz", count=np.full(16, 3, dtype=np.uint32)), scene, 8)
+    deflated = rewrite("deflated.npz")
+    data = bytearray(open(deflated, "rb").read())
+    start = data.index(b"sum.npy") + len("sum.npy") + 40  # inside the sum member's compressed bytes
+    data[start:start + 16] = bytes(16)
+    with open(deflated, "wb") as f:
+        f.write(data)
+    with pytest.raises(CheckpointError, match="not a wavefront checkpoint"):
+        load_checkpoint(deflated, scene, 8)
+    method = bytearray(open(rewrite("method.npz"), "rb").read())
+    for at in range(len(method) - 4):  # every local and central header: compression method 99
+        if method[at:at + 4] in (b"PK\x03\x04", b"PK\x01\x02"):
+            offset = 8 if method[at + 2] == 3 else 10
+            method[at + offset:at + offset + 2] = (99).to_bytes(2, "little")
+    with open(tmp_path / "method.npz", "wb") as f:
+        f.write(method)
+    with pytest.raises(CheckpointError, match="not a wavefront checkpoint"):
+        load_checkpoint(str(tmp_path / "method.npz"), scene, 8)
+
+
+def test_control_characters_in_names_are_escaped_in_the_one_line(tmp_path):
+    """A newline in a YAML key or a file name split the message in two (the
+    second line could pose as another error) and an ESC sequence reached the terminal."""
+    scene = write_scene(tmp_path, "spheres: [{center: [0, 0, -1], radius: 0.5, material: 0}]\n"
+                                  "materials: {m: {type: lambertian}}\n"
+                                  '"x\\nwavefront: error: forged\\e[31m": 1\n')
+    r = run("render", scene, "-o", tmp_path / "out.npy", "--spp", 1)
+    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
+    assert "\x1b" not in r.stderr and "x\\nwavefront: error: forged\\x1b[31m" in r.stderr
+    assert not os.path.exists(tmp_path / "out.npy")
