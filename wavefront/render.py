@@ -429,6 +429,8 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         If ``checkpoint`` cannot be written.
     """
     start = time.perf_counter()
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene: expected a Scene (wavefront.load_scene reads a file), got {type(scene).__name__}")
     _check_arguments(memory=memory, workers=workers, chunk_size=chunk_size, checkpoint_interval=checkpoint_interval,
                      progress=progress, should_stop=should_stop, executor=executor)
     tune_allocator()

@@ -46,7 +46,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
 )
 from .media import Medium
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
-from .memory import refuse_unless_fits
+from .memory import check_budget, refuse_unless_fits
 from .textures import image_load_bytes
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
@@ -436,8 +436,12 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
     ------
     SceneError
         Naming the file, the YAML path and the problem.
+    ValueError
+        If ``memory`` is not a budget :func:`wavefront.render_scene` accepts.
     """
-    source = os.fspath(path)
+    source = os.fsdecode(path)  # a bytes path too: the messages and the mesh paths are text
+    if memory is not None:
+        memory = check_budget(memory)  # ValueError, as render_scene's
     try:
         with open(source, "rb") as f:
             try:
