@@ -182,3 +182,19 @@ def test_control_characters_in_names_are_escaped_in_the_one_line(tmp_path):
     assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
     assert "\x1b" not in r.stderr and "x\\nwavefront: error: forged\\x1b[31m" in r.stderr
     assert not os.path.exists(tmp_path / "out.npy")
+
+
+def test_the_api_names_bad_arguments(tmp_path):
+    """``load_scene(p, memory='1G')`` raised a TypeError from deep inside, a
+    bytes path another, and ``render('x.yaml')`` an AttributeError."""
+    from wavefront import load_scene, render
+
+    scene = write_scene(tmp_path, "image: {width: 4, height: 4}\nmaterials: {m: {type: lambertian}}\n"
+                                  "spheres: [{center: [0, 0, -1], radius: 0.5, material: m}]\n")
+    with pytest.raises(ValueError, match="memory: expected a number of bytes"):
+        load_scene(scene, memory="1G")
+    with pytest.raises(ValueError, match="memory: at least"):
+        load_scene(scene, memory=-1)
+    assert load_scene(os.fsencode(scene)).width == 4
+    with pytest.raises(TypeError, match="expected a Scene"):
+        render(str(scene))
