@@ -380,11 +380,18 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     light = emitters.sample(point, u_choice, u_point, time)
     normal = gather(surface.normal, rows)
     p_material = lambertian_pdf(normal, light.direction)
-    ok = np.flatnonzero((p_material > 0.0) & (light.radiance.max(axis=0) > 0.0))
+    carries = light.carries if light.carries is not None else light.radiance.max(axis=0) > 0.0
+    ok = np.flatnonzero((p_material > 0.0) & carries)
     rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
     albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
     f_cos = albedo * p_material  # lambertian_eval's value: its pdf is the one just taken
-    contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
+    if len(emitters) == 1 and emitters.texture is None:
+        # one untextured emitter: every sample that carries light has its
+        # column times True, the column itself, which broadcasts (no gather)
+        radiance = emitters.radiance[:, :1]
+    else:
+        radiance = gather(light.radiance, ok)
+    contribution = gather(live.throughput, rows) * f_cos * radiance * (mis_weight(pdf, p_material) / pdf)
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
                        contribution=contribution, slot=live.slot.take(rows),
