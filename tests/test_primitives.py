@@ -249,23 +249,12 @@ def test_the_quad_test_is_the_textbook_arithmetic_bit_for_bit(seed, scale, dtype
 
 
 @settings(deadline=None, max_examples=40)
-@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.booleans(),
-       st.sampled_from([0.0, 0.25, 2.0]))
-def test_sphere_any_hit_answers_as_the_nearest_root_below_t_max(seed, dtype, moving, probe_share):
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.booleans())
+def test_sphere_any_hit_answers_as_the_nearest_root_below_t_max(seed, dtype, moving):
     """The spheres' shadow-ray test (both roots compared, no nearest chosen)
     answers exactly ``nearest root < t_max`` for rays from inside, from the
     surface (leaving and entering), grazing, and with ``t_max`` at a root,
-    for huge, tiny and ordinary spheres, whether the probe puts a sphere
-    first (share 0: always; 2: never); moving spheres take the generic test."""
-    from wavefront.shapes import sphere as sphere_module
-    saved, sphere_module.PROBE_SHARE = sphere_module.PROBE_SHARE, probe_share
-    try:
-        _check_sphere_any_hit(seed, dtype, moving)
-    finally:
-        sphere_module.PROBE_SHARE = saved
-
-
-def _check_sphere_any_hit(seed, dtype, moving):
+    for huge, tiny and ordinary spheres; moving spheres take the generic test."""
     rng = np.random.default_rng(seed)
     m, n = 7, 3000
     center = rng.uniform(-3, 3, (3, m))
