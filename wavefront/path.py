@@ -499,9 +499,10 @@ def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: i
                           ROULETTE_MAX_SURVIVAL)
     u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
     survive = u < survival
-    absorbed[rows.take(np.flatnonzero(~survive))] = True
-    kept = rows.take(np.flatnonzero(survive))
-    scatter(live.throughput, kept, gather(live.throughput, kept) / survival[survive])
+    absorbed[rows] = ~survive  # every row was still alive: only the ended become True
+    keep = np.flatnonzero(survive)
+    kept = rows.take(keep)
+    scatter(live.throughput, kept, gather(live.throughput, kept) / survival.take(keep))
     return absorbed
 
 
