@@ -17,6 +17,12 @@ import numpy as np
 from ..geometry import BLOCK_ELEMENTS, escaped_at_inf
 from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_extent
 
+# Below this many rays a bounce's cost is its NumPy calls, not its passes:
+# brute force picks each ray's nearest primitive of a block with argmax (a
+# slow, branchy loop along the first axis, but three calls) rather than a
+# masked write per primitive.
+FEW_RAYS = 64
+
 # Rays tested together by brute force.  Each of the exact tests' ~40
 # operations makes a (primitives, rays) temporary: with a few thousand rays
 # they stay in L2 instead of streaming through memory.  Whole Cornell box
@@ -278,6 +284,12 @@ class Primitives:
             # every primitive at its ray's minimum, in one pass over the block
             won = np.equal(t, t_block, out=np.empty(t.shape, dtype=bool))
             won &= closer
+            if n <= FEW_RAYS:
+                # argmax finds each column's first True, the lowest index (0
+                # where none: not written): three calls, not one per primitive
+                np.copyto(best_idx, won.argmax(axis=0) + (offset + start), where=won.any(axis=0), casting="unsafe")
+                best_t = np.fmin(best_t, t_block)
+                continue
             for j in range(stop - start - 1, -1, -1):  # downwards, so the lowest index is written last
                 np.copyto(best_idx, offset + start + j, where=won[j])
             best_t = np.fmin(best_t, t_block)
