@@ -67,11 +67,23 @@ class LightSample:
     direction: np.ndarray  # (3, N) unit, reference point -> point
     distance: np.ndarray  # (N,)
     pdf: np.ndarray  # (N,) solid angle, emitter choice included
-    radiance: np.ndarray  # (3, N) emitted towards the reference point
     # (N,) whether ``radiance`` has a positive channel, where that is known
     # without reading it (untextured emitters: there it is exactly the
     # sample's lit mask, see EmitterTable.sample); None: read ``radiance``
     carries: np.ndarray | None = None
+    # ``radiance`` as given, or (untextured emitters) the emitters' columns
+    # ``(3, N)`` or ``(3, 1)`` whose product with ``carries`` it is, formed
+    # on first use: next-event estimation with one emitter never reads it
+    # (it broadcasts the column), a (3, N) pass and array saved per bounce
+    given_radiance: np.ndarray | None = None
+    emitter_radiance: np.ndarray | None = None
+
+    @property
+    def radiance(self) -> np.ndarray:
+        """``(3, N)`` emitted towards the reference point."""
+        if self.given_radiance is None:
+            self.given_radiance = self.emitter_radiance * self.carries
+        return self.given_radiance
 
 
 @dataclass(slots=True)
@@ -226,7 +238,10 @@ class EmitterTable:
         direction /= np.maximum(distance, _TINY)
         front = dot(normal, direction) < 0.0  # the light faces the reference point
         single = len(self) == 1  # its one column broadcasts: no gathers per sample
-        pdf *= self.pmf[0] if single else self.pmf.take(e)
+        if not single:
+            pdf *= self.pmf.take(e)
+        elif self.pmf[0] != 1.0:  # a lone emitter's pmf is 1: x * 1 is x
+            pdf *= self.pmf[0]
         lit = front & (pdf > 0) & np.isfinite(pdf)
         if self.texture is not None:
             radiance = gather(self.radiance, e)
@@ -234,13 +249,13 @@ class EmitterTable:
                 kind = np.full(n, self.one_kind, dtype=self.kind.dtype)
             self._texture(radiance, e, kind, point, normal, u)
             radiance *= lit
-            return LightSample(point, direction, distance, pdf, radiance)
-        radiance = (self.radiance[:, :1] if single else gather(self.radiance, e)) * lit
+            return LightSample(point, direction, distance, pdf, given_radiance=radiance)
         # Every emitter's column has a positive channel (its mean power is
         # positive, build's rule), so a channel of ``column * lit`` is positive
         # exactly where lit (inf * True is inf, inf * False NaN: not positive):
         # the caller need not reduce the (3, N) radiance to know which carry light.
-        return LightSample(point, direction, distance, pdf, radiance, carries=lit)
+        return LightSample(point, direction, distance, pdf, carries=lit,
+                           emitter_radiance=self.radiance[:, :1] if single else gather(self.radiance, e))
 
     def _texture(self, radiance, e, kind, point, normal, u) -> None:
         """Textured emitters' radiance at their sampled points, written into ``radiance``.
