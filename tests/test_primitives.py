@@ -249,23 +249,12 @@ def test_the_quad_test_is_the_textbook_arithmetic_bit_for_bit(seed, scale, dtype
 
 
 @settings(deadline=None, max_examples=40)
-@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.booleans(),
-       st.sampled_from([0.0, 0.25, 2.0]))
-def test_sphere_any_hit_answers_as_the_nearest_root_below_t_max(seed, dtype, moving, probe_share):
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.booleans())
+def test_sphere_any_hit_answers_as_the_nearest_root_below_t_max(seed, dtype, moving):
     """The spheres' shadow-ray test (both roots compared, no nearest chosen)
     answers exactly ``nearest root < t_max`` for rays from inside, from the
     surface (leaving and entering), grazing, and with ``t_max`` at a root,
-    for huge, tiny and ordinary spheres, whether the probe puts a sphere
-    first (share 0: always; 2: never); moving spheres take the generic test."""
-    from wavefront.shapes import sphere as sphere_module
-    saved, sphere_module.PROBE_SHARE = sphere_module.PROBE_SHARE, probe_share
-    try:
-        _check_sphere_any_hit(seed, dtype, moving)
-    finally:
-        sphere_module.PROBE_SHARE = saved
-
-
-def _check_sphere_any_hit(seed, dtype, moving):
+    for huge, tiny and ordinary spheres; moving spheres take the generic test."""
     rng = np.random.default_rng(seed)
     m, n = 7, 3000
     center = rng.uniform(-3, 3, (3, m))
@@ -293,3 +282,30 @@ def _check_sphere_any_hit(seed, dtype, moving):
     want = (spheres.t_block(0, m, origin, direction, time) < t_max).any(axis=0)
     np.testing.assert_array_equal(spheres.any_hit_block(0, m, origin, direction, t_max, time), want)
     assert want.any() and not want.all()
+
+
+@settings(deadline=None, max_examples=60)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.integers(1, 64),
+       st.booleans())
+def test_few_rays_pick_the_same_nearest_sphere(seed, dtype, n, limited):
+    """Below ``FEW_RAYS`` brute force picks each ray's winner with argmax:
+    the same hits, ``t`` and lowest index on a tie (duplicated spheres meet
+    a ray at the same ``t``), as the per-primitive writes of larger queries."""
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, 10))
+    center, radius = rng.uniform(-3, 3, (3, m)), rng.uniform(0.2, 2.0, m)
+    twin = rng.integers(0, m, m)  # every sphere again, some twice: ties
+    center, radius = np.concatenate((center, center[:, twin]), axis=1), np.concatenate((radius, radius[twin]))
+    prims = Primitives([SphereSet(center, radius, np.zeros(radius.size, np.int32), dtype)], dtype)
+    origin = rng.uniform(-5, 5, (3, n)).astype(dtype)
+    direction = normalize(rng.normal(size=(3, n))).astype(dtype)
+    t_max = rng.uniform(0.5, 8.0, n).astype(dtype) if limited else np.inf
+    few = prims.intersect(origin, direction, t_max)
+    saved, primitives_module.FEW_RAYS = primitives_module.FEW_RAYS, 0
+    try:
+        many = prims.intersect(origin, direction, t_max)
+    finally:
+        primitives_module.FEW_RAYS = saved
+    np.testing.assert_array_equal(few.t, many.t)
+    np.testing.assert_array_equal(few.primitive_idx, many.primitive_idx)
+    assert few.primitive_idx.dtype == np.int32

@@ -207,3 +207,22 @@ def test_float32_and_float64_renders_agree(scene):
     f64 = render(scene.replace(render=dataclasses.replace(scene.render, precision="float64")), workers=1)
     assert abs(f32.mean() - f64.mean()) < 1e-3 * f64.mean()
     assert np.mean(np.abs(f32 - f64) > 1e-3) < 0.01
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("cornell_spheres.yaml", {}),  # an open room: ~1 % escape a bounce, lamp and glass
+    ("checkered_spheres.yaml", {}),  # a textured albedo under a sky, one kernel
+    ("simple_light.yaml", {}),  # a textured albedo and emitters: routed by kind
+    ("three_spheres.yaml", {"sampler": "independent"}),  # three kernels, no emitter
+])
+def test_escaped_paths_left_in_the_batch_change_no_pixel(monkeypatch, name, overrides):
+    """Escaped paths carried through a bounce as absorbed stand-ins
+    (path.escaped) give the image of compacting them away at once, bit for
+    bit: forced for every escape (fraction 1, even under a sky) and never."""
+    from wavefront import path as path_module
+    scene = load_scene(SCENES / name).with_overrides(width=40, height=30, samples_per_pixel=3, **overrides)
+    images = []
+    for fraction in (0.0, 1.0):
+        monkeypatch.setattr(path_module, "ESCAPED_KEPT_FRACTION", fraction)
+        images.append(render(scene, workers=1))
+    np.testing.assert_array_equal(images[0], images[1])

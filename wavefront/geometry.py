@@ -316,16 +316,20 @@ def anchored_roots(center, radius_squared, near_point, far_point, origin, direct
     gives NaN roots.  ``t_min`` is ``max(T_MIN, RELATIVE_T_MIN max_i |o_i|)``.
     """
     h, sqrt_disc = sphere_roots(center, radius_squared, origin, direction)
-    w = [origin[i] - near_point[i] for i in range(3)]
-    power = w[0] * (origin[0] - far_point[0])
-    power += w[1] * (origin[1] - far_point[1])
-    power += w[2] * (origin[2] - far_point[2])
+    # (o - near) (o - far) summed over the axes, in place (products commute
+    # exactly: the same numbers as with a temporary per factor)
+    power = origin[0] - near_point[0]
+    power *= origin[0] - far_point[0]
+    for i in (1, 2):
+        term = origin[i] - near_point[i]
+        term *= origin[i] - far_point[i]
+        power += term
     big = np.copysign(sqrt_disc, h)
     big += h
     with np.errstate(divide="ignore", invalid="ignore"):
         power /= big  # now the small root
     reach = np.maximum(np.maximum(np.abs(origin[0]), np.abs(origin[1])), np.abs(origin[2]))
-    if reach.max(initial=0.0) <= FLOAT32_EXTENT:
+    if reach.size == 0 or reach.max() <= FLOAT32_EXTENT:  # max(initial=0) goes through a Python wrapper
         return power, big, T_MIN  # the same comparisons as with T_MIN per ray, with no broadcast
     return power, big, np.maximum(reach * RELATIVE_T_MIN, T_MIN)
 

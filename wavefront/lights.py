@@ -49,6 +49,7 @@ SPHERE, QUAD, TRIANGLE = 0, 1, 2  # emitter kinds
 # Below sin^2(1.5 degrees) the cone's 1 - cos(theta_max) cancels in floating
 # point; pbrt-v4 switches to the small-angle series there (sin^2 / 2).
 SMALL_CONE_SIN2 = 0.00068523
+_TINY = np.finfo(np.float64).tiny  # a distance floor: no division by zero
 # A triangle without file uv has the barycentrics (b1, b2) as its uv: corners (0, 0), (1, 0), (0, 1).
 _BARYCENTRIC_UV = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[:, :, None]
 
@@ -66,7 +67,23 @@ class LightSample:
     direction: np.ndarray  # (3, N) unit, reference point -> point
     distance: np.ndarray  # (N,)
     pdf: np.ndarray  # (N,) solid angle, emitter choice included
-    radiance: np.ndarray  # (3, N) emitted towards the reference point
+    # (N,) whether ``radiance`` has a positive channel, where that is known
+    # without reading it (untextured emitters: there it is exactly the
+    # sample's lit mask, see EmitterTable.sample); None: read ``radiance``
+    carries: np.ndarray | None = None
+    # ``radiance`` as given, or (untextured emitters) the emitters' columns
+    # ``(3, N)`` or ``(3, 1)`` whose product with ``carries`` it is, formed
+    # on first use: next-event estimation with one emitter never reads it
+    # (it broadcasts the column), a (3, N) pass and array saved per bounce
+    given_radiance: np.ndarray | None = None
+    emitter_radiance: np.ndarray | None = None
+
+    @property
+    def radiance(self) -> np.ndarray:
+        """``(3, N)`` emitted towards the reference point."""
+        if self.given_radiance is None:
+            self.given_radiance = self.emitter_radiance * self.carries
+        return self.given_radiance
 
 
 @dataclass(slots=True)
@@ -99,6 +116,9 @@ class EmitterTable:
     textures: TextureTable | None = None
     vertex_uv: np.ndarray | None = None  # (3, 2, E) a triangle's corner uv (barycentrics where the mesh has none)
     rotation: np.ndarray | None = None  # (3, 3, E) a turned sphere's rotation (for its uv), identity elsewhere
+    # the one kind of every emitter (SPHERE, QUAD or TRIANGLE), or -1 for a
+    # mix: decided once here, not per light sample (see :meth:`sample`)
+    one_kind: int = -1
 
     def __len__(self) -> int:
         return self.kind.shape[0]
@@ -166,6 +186,7 @@ class EmitterTable:
         cdf = np.cumsum(pmf)
         cdf[-1] = 1.0  # so a uniform below 1 always finds an emitter
         return cls(kind, origin, edge1, edge2, normal, radius, area, radiance, pmf, cdf, emitter_of,
+                   one_kind=int(kind[0]) if kind.min() == kind.max() else -1,
                    velocity=velocity if velocity.any() else None,
                    texture=texture if textured else None, textures=materials.textures if textured else None,
                    vertex_uv=np.concatenate([p[10] for p in parts], axis=-1) if textured else None,
@@ -198,11 +219,11 @@ class EmitterTable:
         # it, and the caller need not draw ``u_choice`` (None)
         e = np.zeros(n, dtype=np.intp) if len(self) == 1 else self.choose(u_choice)
         samplers = ((SPHERE, self._sample_spheres), (QUAD, self._sample_quads), (TRIANGLE, self._sample_triangles))
-        if self.kind.min() == self.kind.max():
+        kind = None
+        if self.one_kind >= 0:
             # one kind of emitter (RTOW's scenes: quad lights): no routing,
             # no gathers and scatters of every sample (each sampler returns new arrays)
-            kind = np.broadcast_to(self.kind[0], e.shape)
-            point, normal, pdf = dict(samplers)[int(self.kind[0])](e, ref, u, time)
+            point, normal, pdf = samplers[self.one_kind][1](e, ref, u, time)
         else:
             point, normal, pdf = np.empty((3, n)), np.empty((3, n)), np.empty(n)
             kind = self.kind.take(e)
@@ -214,18 +235,27 @@ class EmitterTable:
                     point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
         direction = point - ref
         distance = np.sqrt(dot(direction, direction))
-        direction /= np.maximum(distance, np.finfo(np.float64).tiny)
+        direction /= np.maximum(distance, _TINY)
         front = dot(normal, direction) < 0.0  # the light faces the reference point
         single = len(self) == 1  # its one column broadcasts: no gathers per sample
-        pdf *= self.pmf[0] if single else self.pmf.take(e)
+        if not single:
+            pdf *= self.pmf.take(e)
+        elif self.pmf[0] != 1.0:  # a lone emitter's pmf is 1: x * 1 is x
+            pdf *= self.pmf[0]
         lit = front & (pdf > 0) & np.isfinite(pdf)
         if self.texture is not None:
             radiance = gather(self.radiance, e)
+            if kind is None:
+                kind = np.full(n, self.one_kind, dtype=self.kind.dtype)
             self._texture(radiance, e, kind, point, normal, u)
             radiance *= lit
-        else:
-            radiance = (self.radiance[:, :1] if single else gather(self.radiance, e)) * lit
-        return LightSample(point, direction, distance, pdf, radiance)
+            return LightSample(point, direction, distance, pdf, given_radiance=radiance)
+        # Every emitter's column has a positive channel (its mean power is
+        # positive, build's rule), so a channel of ``column * lit`` is positive
+        # exactly where lit (inf * True is inf, inf * False NaN: not positive):
+        # the caller need not reduce the (3, N) radiance to know which carry light.
+        return LightSample(point, direction, distance, pdf, carries=lit,
+                           emitter_radiance=self.radiance[:, :1] if single else gather(self.radiance, e))
 
     def _texture(self, radiance, e, kind, point, normal, u) -> None:
         """Textured emitters' radiance at their sampled points, written into ``radiance``.
@@ -344,18 +374,22 @@ def sample_triangle(v0, e1, e2, u, area=None):
 
 
 def _cone(center, radius, reference):
-    """Axis (unit, reference -> centre), distance, sin^2 and 1 - cos of the cone's half-angle."""
+    """Axis (unit, reference -> centre), distance, sin^2 and 1 - cos of the
+    cone's half-angle, and the rows of small cones (None: there are none)."""
     axis = center - reference
     distance = np.sqrt(dot(axis, axis))
-    clamped = np.maximum(distance, np.finfo(np.float64).tiny)
+    clamped = np.maximum(distance, _TINY)
     axis /= clamped
     sin2_max = radius / clamped
     sin2_max *= sin2_max
     small = sin2_max < SMALL_CONE_SIN2
     one_minus_cos_max = 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max))
-    if small.any():  # rare (a lamp 40 radii away): the series only where it is needed
-        one_minus_cos_max = np.where(small, 0.5 * sin2_max, one_minus_cos_max)
-    return axis, distance, sin2_max, one_minus_cos_max
+    if small.any():  # a lamp 40 radii away: the series only where it is needed, row by row
+        small = np.flatnonzero(small)
+        one_minus_cos_max[small] = 0.5 * sin2_max.take(small)
+    else:
+        small = None
+    return axis, distance, sin2_max, one_minus_cos_max, small
 
 
 def _frame(z):
@@ -387,15 +421,15 @@ def sample_sphere(center, radius, reference, u):
         ``normal`` is the outward normal at ``point``.
     pdf : ndarray of shape (N,), per unit solid angle
     """
-    axis, distance, sin2_max, one_minus_cos_max = _cone(center, radius, reference)
-    small = sin2_max < SMALL_CONE_SIN2
-    # the where only when some cone is small (both branches cost a pass each)
+    axis, distance, sin2_max, one_minus_cos_max, small = _cone(center, radius, reference)
     cos_theta = 1.0 - one_minus_cos_max * u[0]
-    if small.any():
-        cos_theta = np.where(small, np.sqrt(np.maximum(0.0, 1.0 - sin2_max * u[0])), cos_theta)
     sin2_theta = 1.0 - cos_theta * cos_theta
-    if small.any():
-        sin2_theta = np.where(small, sin2_max * u[0], sin2_theta)
+    if small is not None:
+        # small cones' rows rewritten by index (elementwise: the numbers a
+        # where over every row would give them, at a pass over those rows only)
+        sin2_small = sin2_max.take(small) * u[0].take(small)
+        cos_theta[small] = np.sqrt(np.maximum(0.0, 1.0 - sin2_small))
+        sin2_theta[small] = sin2_small
     with np.errstate(divide="ignore", invalid="ignore"):
         cos_alpha = sin2_theta / sin2_max
         np.subtract(1.0, cos_alpha, out=cos_alpha)
@@ -438,7 +472,7 @@ def sphere_pdf(center, radius, reference, point):
     """The solid-angle pdf of :func:`sample_sphere` for the direction from
     ``reference`` to ``point`` on the sphere (a point of the visible cap when
     the reference is outside)."""
-    _, distance, _, one_minus_cos_max = _cone(center, radius, reference)
+    _, distance, _, one_minus_cos_max, _ = _cone(center, radius, reference)
     pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
     inside = np.flatnonzero(distance <= radius)
     if inside.size:

@@ -66,6 +66,10 @@ from .shapes import Hits
 from .vecmath import dot, gather, scatter, scatter_add
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
+# Paths that escape are left in the batch, marked absorbed, while they are at
+# most this fraction of it (see escaped): compacting every field then costs
+# more than carrying them through one bounce's elementwise stages.
+ESCAPED_KEPT_FRACTION = 1.0 / 8.0
 # The search for media boundaries along a piece of a segment starts this far
 # before the piece (a vertex, or the boundary just crossed): a boundary
 # closer than T_MIN past a ray's origin is skipped, so starting on the
@@ -227,9 +231,9 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             live, hits, in_medium, point = travel_media(cs, sampler, live, hits, first)
             if len(in_medium):
                 in_medium, shadows = scatter_in_media(cs, sampler, in_medium, point, emitters)
-        live, surface = escaped(cs, live, hits, radiance)
+        live, surface, gone = escaped(cs, live, hits, radiance)
         if len(live):
-            absorbed = emitted(cs, live, surface, radiance, emitters)
+            absorbed = emitted(cs, live, surface, radiance, emitters, gone)
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
@@ -266,22 +270,46 @@ def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch
 
 def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     """Stage 3: paths that hit nothing add ``throughput * background`` and
-    end.  Returns the paths that hit something and what they hit."""
+    end.  Returns the paths, what they hit, and which of them escaped (None:
+    none are left in the batch).
+
+    Where few escaped (at most ``ESCAPED_KEPT_FRACTION``: cornell_spheres'
+    open front loses ~1 % a bounce) they stay in the batch until stage 9
+    compacts it anyway, marked absorbed from the start, with a stand-in hit:
+    primitive 0 at ``t = 0`` (the path's own vertex), its normals made the
+    reversed ray (unit, facing it, front side) and its ``uv`` 0, so that
+    every kernel computes finite numbers for it.  Every later stage skips
+    absorbed rows or works row by row and drops them at the end (no random
+    number depends on a row's position), so the image is the same, and one
+    compaction of every field is saved per bounce.  Otherwise only the hit
+    rows go on.
+    """
     hit = hits.primitive_idx >= 0
     esc_idx = np.flatnonzero(~hit)
+    t, primitive_idx = hits.t, hits.primitive_idx
+    gone = None
     if esc_idx.size:
         scatter_add(radiance, live.slot.take(esc_idx),
                     gather(live.throughput, esc_idx) * cs.scene.background.radiance(gather(live.direction, esc_idx)))
-    # from here on only the hit rows matter: compact once (if any escaped:
-    # in a closed room none do, and the hits are used as they are)
-    t, primitive_idx = hits.t, hits.primitive_idx
-    if esc_idx.size:
-        hit_idx = np.flatnonzero(hit)
-        live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
+        if cs.media is None and esc_idx.size <= ESCAPED_KEPT_FRACTION * len(live):
+            gone = ~hit
+            t, primitive_idx = t.copy(), primitive_idx.copy()
+            t[esc_idx], primitive_idx[esc_idx] = 0, 0
+        else:
+            hit_idx = np.flatnonzero(hit)
+            live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
     if len(live) == 0:
-        return live, None
+        return live, None, None
     surface = cs.shapes.surface(live.origin, live.direction, t, primitive_idx, uv=cs.materials.needs_uv, time=live.time)
-    return live, surface
+    if gone is not None:  # the stand-ins' normals: their own rays reversed (surface's arrays are its own)
+        facing = -gather(live.direction, esc_idx)
+        scatter(surface.normal, esc_idx, facing)
+        if surface.geometric_normal is not surface.normal:
+            scatter(surface.geometric_normal, esc_idx, facing)
+        surface.front_face[esc_idx] = True
+        if surface.uv is not None:
+            surface.uv[:, esc_idx] = 0
+    return live, surface, gone
 
 
 def surface_albedo(cs: CompiledScene, surface):
@@ -294,20 +322,25 @@ def surface_albedo(cs: CompiledScene, surface):
     return table.albedo_at(surface.material_idx, surface.point, surface.uv)
 
 
-def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None) -> np.ndarray:
+def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None, gone=None) -> np.ndarray:
     """Stage 4: paths that hit an emitter end there, adding ``throughput *
     color`` if they struck its front side (emission is one-sided, as in RTOW
     book 3, pbrt and Mitsuba: a sphere emits outwards, a quad or triangle on
     its ``cross(u, v)`` / ``cross(v1 - v0, v2 - v0)`` side).  With light
     sampling (``emitters`` given) a hit found by a diffuse bounce is weighted
     by the power heuristic against the light sample that could have found it.
-    Returns the ``absorbed`` mask the later stages extend."""
+    Returns the ``absorbed`` mask the later stages extend (``gone``, the
+    paths that escaped but stay in the batch, are in it from the start and
+    emit nothing: their hit is a stand-in)."""
     table = cs.materials
-    absorbed = np.zeros(len(live), dtype=bool)
+    absorbed = np.zeros(len(live), dtype=bool) if gone is None else gone.copy()
     emissive = table.code("emissive")
     if not (table.kind == emissive).any():
         return absorbed
-    sel = np.flatnonzero(table.kind.take(surface.material_idx) == emissive)
+    on_emitter = table.kind.take(surface.material_idx) == emissive
+    if gone is not None:
+        on_emitter &= ~gone
+    sel = np.flatnonzero(on_emitter)
     if sel.size:
         absorbed[sel] = True
         sel = sel[surface.front_face.take(sel)]
@@ -380,11 +413,18 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     light = emitters.sample(point, u_choice, u_point, time)
     normal = gather(surface.normal, rows)
     p_material = lambertian_pdf(normal, light.direction)
-    ok = np.flatnonzero((p_material > 0.0) & (light.radiance.max(axis=0) > 0.0))
+    carries = light.carries if light.carries is not None else light.radiance.max(axis=0) > 0.0
+    ok = np.flatnonzero((p_material > 0.0) & carries)
     rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
     albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
     f_cos = albedo * p_material  # lambertian_eval's value: its pdf is the one just taken
-    contribution = gather(live.throughput, rows) * f_cos * gather(light.radiance, ok) * (mis_weight(pdf, p_material) / pdf)
+    if len(emitters) == 1 and emitters.texture is None:
+        # one untextured emitter: every sample that carries light has its
+        # column times True, the column itself, which broadcasts (no gather)
+        radiance = emitters.radiance[:, :1]
+    else:
+        radiance = gather(light.radiance, ok)
+    contribution = gather(live.throughput, rows) * f_cos * radiance * (mis_weight(pdf, p_material) / pdf)
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
                        contribution=contribution, slot=live.slot.take(rows),
@@ -424,10 +464,11 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
     kind = table.kind.take(material)
     u = sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     if len(kernels) == 1 and not (table.kind == table.code("emissive")).any():
-        # a lone kind and no emitters: no routing, no gathers
+        # a lone kind and no emitters: no routing, no gathers (absorbed holds
+        # only the escaped paths left in the batch, if any)
         att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
         live.throughput *= att
-        return direction, dead
+        return direction, dead | absorbed
     routes = [(np.flatnonzero(np.isin(table.kind, codes).take(material) if len(codes) > 1 else kind == codes[0]), kernel)
               for codes, kernel in kernels]
     routes = [(sel, kernel) for sel, kernel in routes if sel.size]
@@ -454,7 +495,7 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
                               front_face.take(sel), gather(u, sel), None if albedo is None else gather(albedo, sel))
         scatter(live.throughput, sel, gather(live.throughput, sel) * att)
         scatter(direction, sel, d)
-        absorbed[sel] = dead
+        absorbed[sel] = dead | absorbed.take(sel)  # an escaped path left in the batch stays absorbed
     return direction, absorbed
 
 
@@ -492,9 +533,10 @@ def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: i
                           ROULETTE_MAX_SURVIVAL)
     u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
     survive = u < survival
-    absorbed[rows.take(np.flatnonzero(~survive))] = True
-    kept = rows.take(np.flatnonzero(survive))
-    scatter(live.throughput, kept, gather(live.throughput, kept) / survival[survive])
+    absorbed[rows] = ~survive  # every row was still alive: only the ended become True
+    keep = np.flatnonzero(survive)
+    kept = rows.take(keep)
+    scatter(live.throughput, kept, gather(live.throughput, kept) / survival.take(keep))
     return absorbed
 
 

@@ -88,11 +88,12 @@ def schlick(cosine: np.ndarray, eta_ratio: np.ndarray | float) -> np.ndarray:
 # axis=-1)``, a boolean-mask filter ``x[mask]`` ~8x slower than
 # ``x.take(np.flatnonzero(mask))``, and ``acc[:, idx] += v`` ~4x slower than a
 # take-add-put per row.  The hot path therefore gathers and scatters only
-# through these two helpers.
+# through these two helpers.  The method ``a.take`` rather than ``np.take``,
+# which dispatches through a Python wrapper: ~0.6 us a call, the same numbers.
 
 def gather(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """Columns ``idx`` of ``a`` (last axis), e.g. ``(3, N) -> (3, len(idx))``."""
-    return np.take(a, idx, axis=-1)
+    return a.take(idx, axis=-1)
 
 
 def scatter_add(acc: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:

@@ -17,6 +17,12 @@ import numpy as np
 from ..geometry import BLOCK_ELEMENTS, escaped_at_inf
 from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_extent
 
+# Below this many rays a bounce's cost is its NumPy calls, not its passes:
+# brute force picks each ray's nearest primitive of a block with argmax (a
+# slow, branchy loop along the first axis, but three calls) rather than a
+# masked write per primitive.
+FEW_RAYS = 64
+
 # Rays tested together by brute force.  Each of the exact tests' ~40
 # operations makes a (primitives, rays) temporary: with a few thousand rays
 # they stay in L2 instead of streaming through memory.  Whole Cornell box
@@ -241,8 +247,12 @@ class Primitives:
             Each ray's time in [0, 1), for moving spheres.
         """
         n = origin.shape[1]
-        best_t = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,)).copy()
-        best_idx = np.full(n, -1, dtype=np.int64)
+        # the same numbers as broadcasting t_max (np.full casts a scalar as
+        # asarray would), without broadcast_to's few microseconds of Python
+        best_t = (np.full(n, t_max, dtype=origin.dtype) if np.ndim(t_max) == 0
+                  else np.array(t_max, dtype=origin.dtype).reshape(n))
+        # int32, what Hits holds (every scene-wide index fits: they were cast so before)
+        best_idx = np.full(n, -1, dtype=np.int32)
         rays32 = SlabFilter.rays(origin, direction, t_max) if self._filtered(origin) else None
         for kind, slab, offset, start, stop in self._blocks(n):
             if slab is not None and rays32 is not None:
@@ -271,22 +281,40 @@ class Primitives:
             t_block = np.fmin.reduce(t, axis=0)  # fmin: a miss may be NaN
             # strict: an earlier block keeps a tie; false where nothing was hit
             closer = t_block < best_t
+            # every primitive at its ray's minimum, in one pass over the block
+            won = np.equal(t, t_block, out=np.empty(t.shape, dtype=bool))
+            won &= closer
+            if n <= FEW_RAYS:
+                # argmax finds each column's first True, the lowest index (0
+                # where none: not written): three calls, not one per primitive
+                np.copyto(best_idx, won.argmax(axis=0) + (offset + start), where=won.any(axis=0), casting="unsafe")
+                best_t = np.fmin(best_t, t_block)
+                continue
             for j in range(stop - start - 1, -1, -1):  # downwards, so the lowest index is written last
-                take = closer & (t[j] == t_block)
-                best_idx += take * (offset + start + j - best_idx)
+                np.copyto(best_idx, offset + start + j, where=won[j])
             best_t = np.fmin(best_t, t_block)
-        return Hits(escaped_at_inf(best_t, best_idx >= 0, t_max), best_idx.astype(np.int32))
+        if not (np.ndim(t_max) == 0 and t_max == np.inf):  # else escaped_at_inf returns best_t as it is
+            best_t = escaped_at_inf(best_t, best_idx >= 0, t_max)
+        return Hits(best_t, best_idx)
 
     def _occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         """Any hit with ``T_MIN < t < t_max`` (a shadow ray's question); rays
         stop being tested at their first hit.  Shape ``(N,)`` bool."""
         n = origin.shape[1]
-        limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
+        if isinstance(t_max, np.ndarray) and t_max.shape == (n,) and t_max.dtype == origin.dtype:
+            limit = t_max  # what broadcast_to would return (a view of it), without its Python
+        else:
+            limit = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
+        blocks = list(self._blocks(n))
+        if n and len(blocks) == 1 and (blocks[0][1] is None or not self._filtered(origin)):
+            # one block tested whole (cornell_spheres' eight spheres): its
+            # answer is the answer, with no live rays to track
+            kind, _, _, start, stop = blocks[0]
+            return kind.any_hit_block(start, stop, origin, direction, limit, time)
         blocked = np.zeros(n, dtype=bool)
         live = np.arange(n)
         o, d, lim, tm = origin, direction, limit, time
         rays32 = SlabFilter.rays(origin, direction, limit) if self._filtered(origin) else None
-        blocks = list(self._blocks(n))
         for b, (kind, slab, _, start, stop) in enumerate(blocks):
             if live.size == 0:
                 break
