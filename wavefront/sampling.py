@@ -550,7 +550,8 @@ def _cos_2pi(u: np.ndarray) -> np.ndarray:
     ~1e-7 error is far below what a sampled direction needs (directions are
     renormalised after scattering anyway).
     """
-    return np.cos(((2.0 * np.pi) * u).astype(np.float32)).astype(u.dtype, copy=False)
+    angle = ((2.0 * np.pi) * u).astype(np.float32, copy=False)  # float32 u: already float32, not copied
+    return np.cos(angle, out=angle).astype(u.dtype, copy=False)
 
 
 def cos_sin_2pi(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -558,9 +559,13 @@ def cos_sin_2pi(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     float32, see :func:`_cos_2pi`), the sine as a signed square root, so one
     transcendental instead of two (sin >= 0 exactly when u <= 1/2; copysign,
     not where: the sign is random, and a branchy where mispredicts on every
-    other element)."""
+    other element).  The sine's steps run in place in one buffer."""
     c = _cos_2pi(u)
-    return c, np.copysign(np.sqrt(np.maximum(0.0, 1.0 - c * c)), 0.5 - u)
+    s = np.multiply(c, c)
+    np.subtract(1.0, s, out=s)
+    np.maximum(0.0, s, out=s)
+    np.sqrt(s, out=s)
+    return c, np.copysign(s, 0.5 - u, out=s)
 
 
 def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
@@ -574,14 +579,24 @@ def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     -------
     ndarray of shape (3, N)
     """
+    out = np.empty((3, u1.shape[0]), dtype=np.result_type(u1, u2))
     z = 1.0 - 2.0 * u1
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    out[2] = z
+    r = np.multiply(z, z, out=z)
+    np.subtract(1.0, r, out=r)
+    np.maximum(0.0, r, out=r)
+    np.sqrt(r, out=r)
     c, s = cos_sin_2pi(u2)
-    return np.stack((r * c, r * s, z))
+    np.multiply(r, c, out=out[0])
+    np.multiply(r, s, out=out[1])
+    return out
 
 
 def random_in_unit_disk(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     """Points uniform in the unit disk (``r = sqrt(u1)``); shape ``(2, N)``."""
+    out = np.empty((2, u1.shape[0]), dtype=np.result_type(u1, u2))
     r = np.sqrt(u1)
     c, s = cos_sin_2pi(u2)
-    return np.stack((r * c, r * s))
+    np.multiply(r, c, out=out[0])
+    np.multiply(r, s, out=out[1])
+    return out
