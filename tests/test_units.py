@@ -100,3 +100,37 @@ def test_pixel_rows_and_columns_are_exact_at_the_largest_image():
     _, direction = frame.generate_rays(pixel, u)
     _, expected = _plain_rays(frame, pixel, u)
     np.testing.assert_array_equal(direction, expected)
+
+
+def _plain_reduce(job: Job, radiance: np.ndarray):
+    """Per unit: the sum of each pixel's samples that are finite in every channel, their count, the rest."""
+    out = []
+    for k, unit in enumerate(job.units):
+        block = radiance[:, job.offsets[k]:job.offsets[k + 1]].reshape(3, unit.pixels, unit.samples_per_pixel)
+        finite = np.isfinite(block).all(axis=0)
+        total = np.where(finite, block, 0.0).sum(axis=2)
+        count = finite.sum(axis=1)
+        out.append((unit, total, count, int(finite.size - count.sum())))
+    return out
+
+
+@given(seed=st.integers(0, 2**32 - 1), bad=st.sampled_from(["none", "nan", "inf", "-inf", "overflow", "mixed"]))
+def test_reduce_drops_exactly_the_non_finite_samples(seed, bad):
+    rng = np.random.default_rng(seed)
+    units = list(plan_units(70, 40, 21))[2:9]
+    job = Job(units, 70, 21)
+    radiance = rng.random((3, job.size)) * 10
+    rows = rng.integers(0, job.size, 5)
+    channels = rng.integers(0, 3, 5)
+    if bad in ("nan", "inf", "-inf"):
+        radiance[channels, rows] = float(bad)
+    elif bad == "overflow":  # finite samples whose sum overflows: kept, the sum infinite (as before)
+        radiance[:, rows] = 1e308
+    elif bad == "mixed":
+        radiance[channels[:2], rows[:2]] = np.nan
+        radiance[:, rows[2:]] = 1e308
+    for (unit, total, count, dropped), (_, e_total, e_count, e_dropped) in zip(job.reduce(radiance),
+                                                                             _plain_reduce(job, radiance)):
+        np.testing.assert_array_equal(total, e_total)
+        np.testing.assert_array_equal(count, e_count)
+        assert count.dtype == e_count.dtype and dropped == e_dropped

@@ -194,9 +194,18 @@ class Job:
         for k, unit in enumerate(self.units):
             block = radiance[:, self.offsets[k]:self.offsets[k + 1]]
             block = block.reshape(3, unit.pixels, unit.samples_per_pixel)
+            # Almost always every sample is finite, and then so is every sum
+            # (a NaN or infinity among the terms makes the sum NaN or
+            # infinite): checking the (3, P) sums skips three passes over
+            # every sample, 40 % of this.  Sums that are not finite (a bad
+            # sample, or finite ones overflowing) take the per-sample path.
+            total = block.sum(axis=2)
+            if np.isfinite(total).all():
+                count = np.full(unit.pixels, unit.samples_per_pixel, dtype=np.int64)
+                out.append((unit, total, count, 0))
+                continue
             finite = np.isfinite(block).all(axis=0)
-            # almost always all finite: skip the (slow) where over every sample
-            total = (block if finite.all() else np.where(finite, block, 0.0)).sum(axis=2)
+            total = np.where(finite, block, 0.0).sum(axis=2)
             count = finite.sum(axis=1)
             out.append((unit, total, count, int(finite.size - count.sum())))
         return out
