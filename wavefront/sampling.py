@@ -32,7 +32,6 @@ the tests feed them controlled numbers.
 from __future__ import annotations
 
 import functools
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,6 +122,7 @@ def medium_dimension(depth: np.ndarray, crossing: np.ndarray) -> np.ndarray:
 
 
 _LOW32 = np.uint64(0xFFFFFFFF)
+_S16 = np.uint64(16)
 _LOW24 = np.uint64(0xFFFFFF)
 _S32, _S40, _S8 = np.uint64(32), np.uint64(40), np.uint64(8)
 _TO_UNIT_32 = 2.0**-32
@@ -434,16 +434,6 @@ def _net_points(shuffled: np.ndarray, index_bits: int) -> np.ndarray:
     return owen_premix(sobol_reversed(j, max(index_bits, 1)))
 
 
-# where a uint64's high and low 32-bit words sit among its two uint32s
-_HIGH, _LOW = (1, 0) if sys.byteorder == "little" else (0, 1)
-
-
-def _words(state: np.ndarray) -> np.ndarray:
-    """A uint64 array's 32-bit words, ``(N, 2)`` uint32 (a view: its columns
-    ``_HIGH`` and ``_LOW`` are the high and low words)."""
-    return np.ascontiguousarray(state).view(np.uint32).reshape(-1, 2).T
-
-
 @functools.lru_cache(maxsize=8)
 def _index_table(index_bits: int) -> np.ndarray:
     """``owen_premix(reverse_bits(i))`` for every index ``i < 2^index_bits`` (uint32)."""
@@ -459,8 +449,8 @@ def _premixed_reversed_index(index: np.ndarray, index_bits: int) -> np.ndarray:
 
 
 def pixel_seeds(state: np.ndarray) -> np.ndarray:
-    """The pixel seed of each sobol ``state`` (its high word); uint32, a view."""
-    return _words(state)[_HIGH]
+    """The pixel seed of each sobol ``state`` (its high word); uint32."""
+    return (state >> _S32).astype(np.uint32)
 
 
 def sobol_points(state: np.ndarray, seeds: np.ndarray, index_bits: int, dtype=np.float64) -> np.ndarray:
@@ -479,7 +469,7 @@ def sobol_points(state: np.ndarray, seeds: np.ndarray, index_bits: int, dtype=np
     """
     multiplier = seeds[0] >> _S16U
     multiplier |= _U32(1)
-    shuffled = shuffle_index(_words(state)[_LOW], seeds[0], multiplier, index_bits)
+    shuffled = shuffle_index(state.astype(np.uint32), seeds[0], multiplier, index_bits)
     if index_bits <= _TABLE_BITS:
         v = _net_table(index_bits).take(shuffled, axis=1)
     else:
@@ -508,6 +498,7 @@ def _to_unit(v: np.ndarray, dtype) -> np.ndarray:
 
 
 SAMPLERS = ("sobol", "independent")
+_HIGH32 = np.uint64(0xFFFFFFFF00000000)
 
 
 @dataclass(frozen=True)
@@ -551,11 +542,9 @@ class Sampler:
         pixel = pixel.astype(np.uint64, copy=False)
         index = (sample_id - pixel * np.uint64(self.samples_per_pixel)).astype(np.uint32)
         state = mix64(pixel ^ self.key)
-        # the high word keeps q and gets the seed hash's first step (see
-        # pair_seeds), once per path; the low word becomes the index's
-        words = _words(state)
-        words[_HIGH] ^= words[_HIGH] >> _S16U
-        words[_LOW] = _premixed_reversed_index(index, self.index_bits)
+        state &= _HIGH32
+        state ^= (state >> _S16) & _HIGH32  # the seed hash's first step (see pair_seeds), once per path
+        state |= _premixed_reversed_index(index, self.index_bits)
         return state
 
     def pairs(self, state: np.ndarray, pair, dtype=np.float64) -> np.ndarray:
