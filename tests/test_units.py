@@ -13,6 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from wavefront import Camera
+from wavefront import camera as camera_module
 from wavefront.units import Job, plan_units
 from wavefront.vecmath import normalize
 from wavefront.sampling import random_in_unit_disk
@@ -84,11 +85,16 @@ def test_generate_rays_matches_the_plain_formula_bit_for_bit(seed, defocus, widt
                             rng.integers(0, width * height, n - 4)))
     u = rng.random((4, n))
     u[:, :4] = np.nextafter(1.0, 0.0)
-    origin, direction = frame.generate_rays(pixel, u)
     expected_origin, expected_direction = _plain_rays(frame, pixel, u)
-    np.testing.assert_array_equal(origin, expected_origin)
-    np.testing.assert_array_equal(direction, expected_direction)
-    assert origin.flags.writeable and origin.flags.c_contiguous
+    for block in (camera_module.RAY_BLOCK, 64):  # one block, and several with a short last one
+        saved, camera_module.RAY_BLOCK = camera_module.RAY_BLOCK, block
+        try:
+            origin, direction = frame.generate_rays(pixel, u)
+        finally:
+            camera_module.RAY_BLOCK = saved
+        np.testing.assert_array_equal(origin, expected_origin)
+        np.testing.assert_array_equal(direction, expected_direction)
+        assert origin.flags.writeable and origin.flags.c_contiguous
 
 
 def test_pixel_rows_and_columns_are_exact_at_the_largest_image():
