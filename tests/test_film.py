@@ -154,3 +154,26 @@ def test_an_image_that_fails_late_is_rescued(tmp_path, monkeypatch, capsys):
     rescued = list((tmp_path / "rescue").glob("wavefront-rescued-*.npy"))
     assert len(rescued) == 1 and str(rescued[0]) in err
     assert np.load(rescued[0]).shape == (18, 32, 3) and not out.exists()
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_add_puts_each_tile_on_its_pixels(order):
+    """Film.add writes a unit's sums through sliced views of the tile: the same
+    as adding at the tile's pixel indices, also for a film whose arrays came
+    in Fortran order (a checkpoint may store them so: the reshaped views must
+    still be views, or the adds would be lost)."""
+    from wavefront.units import plan_units
+
+    width, height, spp = 150, 70, 3
+    rng = np.random.default_rng(1)
+    sums = np.zeros((3, width * height), order=order)
+    film = Film(width, height, sums, np.zeros(width * height, dtype=np.uint32))
+    expected_sum, expected_count = np.zeros((3, width * height)), np.zeros(width * height, dtype=np.uint32)
+    for unit in plan_units(width, height, spp):
+        total, count = rng.random((3, unit.pixels)), rng.integers(0, 5, unit.pixels)
+        film.add(unit, total, count)
+        pixels = unit.pixel_index(width)
+        expected_sum[:, pixels] += total
+        expected_count[pixels] += count.astype(np.uint32)
+    np.testing.assert_array_equal(film.sum, expected_sum)
+    np.testing.assert_array_equal(film.count, expected_count)

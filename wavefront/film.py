@@ -38,9 +38,16 @@ class Film:
         self.count = np.zeros(width * height, dtype=np.uint32) if count is None else count
 
     def add(self, unit: Unit, total: np.ndarray, count: np.ndarray) -> None:
-        pixels = unit.pixel_index(self.width)
-        self.sum[:, pixels] += total
-        self.count[pixels] += count.astype(np.uint32)
+        """Add a unit's per-pixel sums ``total (3, P)`` and ``count (P,)`` (its tile, row-major)."""
+        # the tile is a rectangle of the image: sliced views, not a gather and
+        # scatter through pixel indices (half the time, in the parent, which
+        # merges while the workers render); the same additions.  Splitting
+        # the last axis is a view for any strides (a checkpoint's arrays may
+        # be in Fortran order), so the adds land in the film.
+        h, w = unit.y1 - unit.y0, unit.x1 - unit.x0
+        tile = np.s_[unit.y0:unit.y1, unit.x0:unit.x1]
+        self.sum.reshape(3, self.height, self.width)[(slice(None), *tile)] += total.reshape(3, h, w)
+        self.count.reshape(self.height, self.width)[tile] += count.astype(np.uint32).reshape(h, w)
 
     def rows(self, y0: int, y1: int) -> np.ndarray:
         """Mean of each pixel's samples for image rows ``y0:y1``, (rows, W, 3) float32; 0 where none."""

@@ -147,22 +147,37 @@ class Job:
         sizes = np.array([u.size for u in units], dtype=np.int64)
         self.offsets = np.concatenate(([0], np.cumsum(sizes)))
         self.size = int(self.offsets[-1])
-        # per-unit geometry as arrays, so any run of slots maps to pixels in one pass
-        self._x0 = np.array([u.x0 for u in units], dtype=np.int64)
-        self._y0 = np.array([u.y0 for u in units], dtype=np.int64)
-        self._tile_width = np.array([u.x1 - u.x0 for u in units], dtype=np.int64)
-        self._pass_size = np.array([u.samples_per_pixel for u in units], dtype=np.int64)
-        self._pass_start = np.array([u.sample_start for u in units], dtype=np.int64)
 
     def samples(self, start: int, stop: int):
-        """Pixel index and global sample id of slots ``start:stop``."""
-        slots = np.arange(start, stop, dtype=np.int64)
-        which = np.searchsorted(self.offsets, slots, side="right") - 1
-        p, s = np.divmod(slots - self.offsets.take(which), self._pass_size.take(which))
-        row, col = np.divmod(p, self._tile_width.take(which))
-        pixel = (self._y0.take(which) + row) * self.width + self._x0.take(which) + col
-        sample = self._pass_start.take(which) + s
-        sample_id = pixel.astype(np.uint64) * np.uint64(self.samples_per_pixel) + sample.astype(np.uint64)
+        """Pixel index (int64) and global sample id (uint64) of slots ``start:stop``.
+
+        Unit by unit (a refill spans a few units): a unit's slots are its
+        tile's pixels, each repeated for the pass's samples, so the run is
+        the pixels it touches repeated, cut at both ends.  (A search, two
+        divisions and five gathers per slot cost 14 ns a slot; this, 2.)
+        """
+        n = stop - start
+        pixel = np.empty(n, dtype=np.int64)
+        sample_id = np.empty(n, dtype=np.uint64)
+        k = int(np.searchsorted(self.offsets, start, side="right")) - 1
+        pos = 0
+        while pos < n:
+            unit, base = self.units[k], int(self.offsets[k])
+            a, b = start + pos - base, min(stop - base, unit.size)  # the unit's slots a:b
+            per = unit.samples_per_pixel
+            p0, p1 = a // per, -(-b // per)  # the tile's pixels that a:b touches
+            tile_width = unit.x1 - unit.x0
+            r0 = p0 // tile_width  # their rows of the tile, as image indices
+            ys = np.arange(unit.y0 + r0, unit.y0 + -(-p1 // tile_width), dtype=np.int64)
+            xs = np.arange(unit.x0, unit.x1, dtype=np.int64)
+            pix = (ys[:, None] * self.width + xs).ravel()[p0 - r0 * tile_width:p1 - r0 * tile_width]
+            cut = slice(a - p0 * per, b - p0 * per)
+            pixel[pos:pos + b - a] = np.repeat(pix, per)[cut]
+            ids = np.repeat(pix.astype(np.uint64) * np.uint64(self.samples_per_pixel) + np.uint64(unit.sample_start), per)
+            ids += np.tile(np.arange(per, dtype=np.uint64), p1 - p0)
+            sample_id[pos:pos + b - a] = ids[cut]
+            pos += b - a
+            k += 1
         return pixel, sample_id
 
     def reduce(self, radiance: np.ndarray):
@@ -179,9 +194,18 @@ class Job:
         for k, unit in enumerate(self.units):
             block = radiance[:, self.offsets[k]:self.offsets[k + 1]]
             block = block.reshape(3, unit.pixels, unit.samples_per_pixel)
+            # Almost always every sample is finite, and then so is every sum
+            # (a NaN or infinity among the terms makes the sum NaN or
+            # infinite): checking the (3, P) sums skips three passes over
+            # every sample, 40 % of this.  Sums that are not finite (a bad
+            # sample, or finite ones overflowing) take the per-sample path.
+            total = block.sum(axis=2)
+            if np.isfinite(total).all():
+                count = np.full(unit.pixels, unit.samples_per_pixel, dtype=np.int64)
+                out.append((unit, total, count, 0))
+                continue
             finite = np.isfinite(block).all(axis=0)
-            # almost always all finite: skip the (slow) where over every sample
-            total = (block if finite.all() else np.where(finite, block, 0.0)).sum(axis=2)
+            total = np.where(finite, block, 0.0).sum(axis=2)
             count = finite.sum(axis=1)
             out.append((unit, total, count, int(finite.size - count.sum())))
         return out
