@@ -235,7 +235,7 @@ def plan_tasks(plan: UnitPlan, capacity: int, workers: int = 1, first_unit: int 
     for i in range(first_unit, len(plan)):
         unit = plan[i]
         if not current:
-            target = (max(SMALLEST_SHARED_TASK, share) if even
+            target = (max(smallest, share) if even
                       else min(TASK_WAVEFRONTS * capacity, max(smallest, remaining // (2 * workers))))
         current.append(unit)
         size += unit.size
