@@ -213,6 +213,7 @@ def test_float32_and_float64_renders_agree(scene):
     ("cornell_spheres.yaml", {}),  # an open room: ~1 % escape a bounce, lamp and glass
     ("checkered_spheres.yaml", {}),  # a textured albedo under a sky, one kernel
     ("simple_light.yaml", {}),  # a textured albedo and emitters: routed by kind
+    ("earth.yaml", {}),  # an image texture: the stand-ins' uv
     ("three_spheres.yaml", {"sampler": "independent"}),  # three kernels, no emitter
 ])
 def test_escaped_paths_left_in_the_batch_change_no_pixel(monkeypatch, name, overrides):
