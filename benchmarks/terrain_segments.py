@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/terrain_segments.py                 # this checkout, 3 interleaved runs
     .venv/bin/python benchmarks/terrain_segments.py --runs 5 --root /path/to/other/checkout
+    .venv/bin/python benchmarks/terrain_segments.py --set BIG_LEAF_ROUNDS=2 --set SUBTREE_LEVELS=3
 
 The quick, wavefront-only form of ``bench.py --section geometry``'s one-core
 rows, for iterating on the intersection engine.  Each run is a fresh process
@@ -10,7 +11,9 @@ compiled scene on one worker, so the per-segment time is the render's alone
 and not a difference of two noisy timings.  Both wall and CPU time are
 printed: on a machine shared with other jobs the CPU time is the steadier of
 the two.  The terrains (scenes/make_mesh_models.py) are written once to
-``--folder``.
+``--folder``.  ``--set NAME=VALUE`` sets a constant of ``wavefront.bvh`` in
+the children before the scene is compiled, to try a tuning without editing
+the module (compare against a run without it: interleave, medians).
 """
 
 from __future__ import annotations
@@ -28,6 +31,13 @@ CHILD = r"""
 import json, sys, time
 sys.path.insert(0, sys.argv[2])
 import wavefront
+from wavefront import bvh
+for setting in json.loads(sys.argv[3]):  # --set NAME=VALUE: constants of wavefront.bvh
+    name, value = setting.split("=", 1)
+    current = getattr(bvh, name, None)
+    if not name.isupper() or not isinstance(current, (int, float)):
+        sys.exit(f"--set {setting}: wavefront.bvh has no numeric constant {name}")
+    setattr(bvh, name, type(current)(float(value)))
 scene = wavefront.load_scene(sys.argv[1])
 wall = time.perf_counter()
 compiled = scene.compile()
@@ -56,6 +66,8 @@ def main(argv=None) -> None:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--root", default=str(ROOT), help="checkout whose wavefront package to time")
     parser.add_argument("--folder", default=str(Path(tempfile.gettempdir()) / "wavefront-terrain"))
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="set a numeric constant of wavefront.bvh in the timed children (repeatable)")
     args = parser.parse_args(argv)
     folder = Path(args.folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -63,10 +75,14 @@ def main(argv=None) -> None:
     runs = {label: [] for label in scenes}
     for _ in range(args.runs):
         for label, scene in scenes.items():  # interleaved, so both see the same machine
-            out = subprocess.run([sys.executable, "-c", CHILD, str(scene), args.root], check=True,
-                                 capture_output=True, text=True).stdout
-            runs[label].append(json.loads(out))
-    print(f"wavefront from {runs['1k'][0]['wavefront']}; medians of {args.runs} interleaved runs, one core\n")
+            # cwd=root: `python -c` puts the cwd first on sys.path
+            child = subprocess.run([sys.executable, "-c", CHILD, str(scene), args.root, json.dumps(args.set)],
+                                   capture_output=True, text=True, cwd=args.root)
+            if child.returncode:
+                sys.exit(f"the {label} run failed:\n{child.stderr.strip()}")
+            runs[label].append(json.loads(child.stdout))
+    settings = f" with {', '.join(args.set)}" if args.set else ""
+    print(f"wavefront from {runs['1k'][0]['wavefront']}{settings}; medians of {args.runs} interleaved runs, one core\n")
     print("| terrain | BVH build (compile) | wall per segment | CPU per segment | peak memory |\n|---|---|---|---|---|")
     per = {}
     for label, rs in runs.items():

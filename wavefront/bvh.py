@@ -152,6 +152,25 @@ SUBTREE_ROUNDS = 3
 # descendant_boxes): on the 1M terrain 2 levels were ~7 % faster than 1, 3 no faster
 # than 2, 4 ~25 % slower (16 boxes a pair, of which ~2 survive).
 STEP_LEVELS = 2
+# Tried on the 1M terrain and not kept (session 5; CPU per path segment, A/B interleaved
+# against the code as it is, ~2050-2200 ns on a loaded machine):
+# - the node-major row tables (leaf slot boxes, descendant boxes) and the top's columns on a
+#   16-bit grid over the root box: half the bytes gathered, the same time (2042 against 2041
+#   ns, 2091 against 2087 with the top too): the gathers are not bound by bytes;
+# - eight octant copies of the top with planes ordered per octant (no min/max): the min/max
+#   fell from ~130 to ~25 ns a segment, but gathering from the 8x table rose from ~420 to ~600;
+# - nested subtree rounds (another level of rounds 4, 6 or 8 levels above SUBTREE_LEVELS):
+#   ~2420 against 2090;
+# - one box per pair of slots (leaves ordered by median splits down to pairs, the plane pass
+#   over the pair's box): half the boxes, but more plane and exact tests: 2320 against 2217;
+# - BIG_LEAF_SIZE 4 or 16, TRAVERSAL_BATCH_BIG 2048 to 8192, TOP_NODES 0 to 32767,
+#   STEP_LEVELS 3, SUBTREE_LEVELS 3 or 5, SUBTREE_ROUNDS 4, BIG_LEAF_ROUNDS 2: within noise
+#   (a few per cent) or slower.
+# Where the time goes there (per segment, ~2040 ns in the tree): the walk's slab tests ~640
+# (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
+# leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
+# of which 1.1 hit: in leaf order a ray over the rough surface often meets a farther
+# triangle before the nearer one).
 # The plane pass of triangle slots (see _plane_tables) drops a slot whose plane the ray
 # stays on one side of, by more than a margin, over its whole span in the triangle's box:
 # PLANE_ROUNDING float32 epsilons of the tree's extent cover the pass's own arithmetic (a
