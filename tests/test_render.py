@@ -134,6 +134,14 @@ def test_a_small_render_is_shared_out_among_the_workers():
         assert plan.total_samples <= workers * TASK_WAVEFRONTS * capacity
         assert len(list(plan_tasks(plan, capacity, workers=workers))) == workers, (width, height, spp, workers)
     assert len(list(plan_tasks(plan_units(128, 128, 64), capacity, workers=2))) > 2
+    # units grow (sample passes double), and resuming starts mid-plan: still one near-equal task a
+    # worker (closing a task only past its share made the first swallow nearly everything)
+    for width, height, spp, cap, workers, first in ((64, 64, 32, 16384, 2, 1), (48, 48, 64, 65536, 2, 1),
+                                                    (32, 32, 100, 16384, 3, 0), (48, 48, 100, 65536, 3, 0),
+                                                    (64, 64, 64, 32768, 4, 1), (160, 120, 32, 65536, 8, 0)):
+        plan = plan_units(width, height, spp)
+        sizes = [sum(u.size for u in task) for task in plan_tasks(plan, cap, workers=workers, first_unit=first)]
+        assert len(sizes) == workers and max(sizes) <= 1.25 * sum(sizes) / workers, (width, height, spp, sizes)
     # below a pool's start-up cost a render stays one task (inline)
     tiny = plan_units(128, 128, 1)
     assert tiny.total_samples <= SMALLEST_SHARED_TASK

@@ -142,7 +142,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse, but a bad argument is one line (the usage block is in --help)."""
 
     def error(self, message):
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        _say(f"{self.prog}: error: {message} (see {self.prog} --help)")  # an argument may hold control characters
+        self.exit(EXIT_BAD_INPUT)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -230,18 +230,46 @@ def plan_tasks(plan: UnitPlan, capacity: int, workers: int = 1, first_unit: int 
     remaining = plan.total_samples - plan.samples_before(first_unit)
     share = -(-remaining // workers)
     smallest = min(capacity, max(SMALLEST_SHARED_TASK, share))
-    even = share <= TASK_WAVEFRONTS * capacity
+    if share <= TASK_WAVEFRONTS * capacity:
+        yield from _even_tasks(plan, first_unit, remaining, -(-remaining // max(smallest, share)))
+        return
     current, size, target = [], 0, 0
     for i in range(first_unit, len(plan)):
         unit = plan[i]
         if not current:
-            target = (max(smallest, share) if even
-                      else min(TASK_WAVEFRONTS * capacity, max(smallest, remaining // (2 * workers))))
+            target = min(TASK_WAVEFRONTS * capacity, max(smallest, remaining // (2 * workers)))
         current.append(unit)
         size += unit.size
         if size >= target:
             yield current
             remaining -= size
+            current, size = [], 0
+    if current:
+        yield current
+
+
+def _even_tasks(plan: UnitPlan, first_unit: int, remaining: int, count: int):
+    """The units from ``first_unit`` (``remaining`` samples) in ``count``
+    tasks (fewer only if units are too coarse) as near equal as whole units
+    allow.  Units differ in size (sample passes double: 1, 1, 2, 4, ... spp),
+    so each task aims at an equal part of what is left, and closes before a
+    unit that would overshoot that more than the task falls short of it
+    (closing only past it made the first task swallow nearly everything when
+    resuming, or with three workers)."""
+    current, size, target = [], 0, 0
+    for i in range(first_unit, len(plan)):
+        unit = plan[i]
+        if not current:
+            target = -(-remaining // count)
+        elif count > 1 and size + unit.size - target > target - size:
+            yield current
+            remaining, count = remaining - size, count - 1
+            current, size, target = [], 0, -(-remaining // count)
+        current.append(unit)
+        size += unit.size
+        if count > 1 and size >= target:
+            yield current
+            remaining, count = remaining - size, count - 1
             current, size = [], 0
     if current:
         yield current

@@ -290,14 +290,12 @@ def referenced_files(path: str) -> dict[str, str]:
     from urllib.parse import unquote
 
     doc, root, files = _gltf_json(path), os.path.dirname(path), {}
-    try:
-        for key in ("buffers", "images"):
-            for i, item in enumerate(doc.get(key, [])):
-                uri = item.get("uri")
-                if isinstance(uri, str) and not uri.startswith("data:"):
-                    files[f"{key}[{i}]"] = os.path.join(root, unquote(uri))
-    except (TypeError, AttributeError):
-        pass
+    for key in ("buffers", "images"):
+        items = doc.get(key) if isinstance(doc, dict) else None
+        for i, item in enumerate(items if isinstance(items, list) else []):
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                files[f"{key}[{i}]"] = os.path.join(root, unquote(uri))
     return files
 
 
@@ -338,7 +336,7 @@ def _without_images(data: bytes, doc: dict | None, ext: str) -> bytes:
         doc.pop(key, None)
     if isinstance(materials, list):
         doc["materials"] = [{} for _ in materials]
-    text = json.dumps(doc, separators=(",", ":")).encode()
+    text = json.dumps(doc, separators=(",", ":"), ensure_ascii=False).encode()  # not inflated by escapes
     if ext == "gltf":
         return text
     text += b" " * (-len(text) % 4)  # GLB chunks are 4-byte aligned, JSON padded with spaces
