@@ -223,13 +223,24 @@ def test_float32_and_float64_renders_agree(scene):
     ("simple_light.yaml", {}),  # a textured albedo and emitters: routed by kind
     ("earth.yaml", {}),  # an image texture: the stand-ins' uv
     ("three_spheres.yaml", {"sampler": "independent"}),  # three kernels, no emitter
+    ("cornell_spheres.yaml", {"lamp_first": True}),  # a stand-in's primitive 0 is the lamp: never emits
+    ("cornell_box.yaml", {"lamp_first": True}),  # the light quad first
 ])
 def test_escaped_paths_left_in_the_batch_change_no_pixel(monkeypatch, name, overrides):
     """Escaped paths carried through a bounce as absorbed stand-ins
     (path.escaped) give the image of compacting them away at once, bit for
-    bit: forced for every escape (fraction 1, even under a sky) and never."""
+    bit: forced for every escape (fraction 1, even under a sky) and never.
+    With the emitter listed first the stand-ins (primitive 0) lie on it."""
     from wavefront import path as path_module
+    overrides = dict(overrides)
+    lamp_first = overrides.pop("lamp_first", False)
     scene = load_scene(SCENES / name).with_overrides(width=40, height=30, samples_per_pixel=3, **overrides)
+    if lamp_first:
+        lamp = lambda shape: scene.materials[shape.material].__class__.__name__ == "Emissive"  # noqa: E731
+        kind = "spheres" if scene.spheres and any(map(lamp, scene.spheres)) else "quads"
+        shapes = getattr(scene, kind)
+        scene = scene.replace(**{kind: [s for s in shapes if lamp(s)] + [s for s in shapes if not lamp(s)]})
+        assert lamp(getattr(scene, kind)[0])
     images = []
     for fraction in (0.0, 1.0):
         monkeypatch.setattr(path_module, "ESCAPED_KEPT_FRACTION", fraction)
