@@ -198,3 +198,25 @@ def test_the_api_names_bad_arguments(tmp_path):
     assert load_scene(os.fsencode(scene)).width == 4
     with pytest.raises(TypeError, match="expected a Scene"):
         render(str(scene))
+
+
+def test_an_obj_of_huge_polygons_is_refused_before_trimesh_builds_them(tmp_path):
+    """A 4 MB OBJ whose one face lists 2 M vertices is ~2 M triangles: the
+    file-size estimate let it take a render under --memory 200M to 758 MiB
+    before the compile step refused it.  Its polygons are counted first."""
+    from wavefront import MemoryBudgetError, load_scene
+    from wavefront.memory import current_rss
+    from wavefront.shapes.mesh import MeshError, _obj_triangle_bound, read_mesh
+
+    fan = tmp_path / "fan.obj"
+    fan.write_text("v 0 0 -1\nv 1 0 -1\nv 0 1 -1\nv 1 1 -1\nf " + " ".join(["1 2 3 4"] * 500_000) + "\n")
+    with pytest.raises(MeshError, match="more than 1000000 faces"):
+        read_mesh(str(fan), max_faces=1_000_000)
+    scene = write_scene(tmp_path, "materials: {m: {type: lambertian}}\nmeshes: [{file: fan.obj, material: m}]\n")
+    with pytest.raises(MemoryBudgetError, match=r"meshes\[0\]\.file: loading .*fan\.obj"):
+        load_scene(scene, memory=current_rss() + 300 * 2**20)
+    # a file of triangles: the bound is about their number (trimesh's own export, with normals and uvs)
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    ball.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(ball.vertices), 2)))
+    text = trimesh.exchange.obj.export_obj(ball, include_normals=True, include_texture=True).encode()
+    assert len(ball.faces) <= _obj_triangle_bound(text) <= len(ball.faces) + 8

@@ -824,8 +824,12 @@ def _read_mesh_file(source: str, where: str, file: str, memory: int | None, max_
             refuse_unless_fits(memory, max(MESH_LOAD_BYTES_PER_FILE_BYTE * os.stat(file).st_size,
                                            MESH_LOAD_BYTES_PER_TRIANGLE * mesh_files.declared_triangles(file)),
                                f"{source}: {where}.file: loading {file}")
+    def before_parse(triangles: int) -> None:  # an OBJ's polygons counted: many in a small file
+        if memory is not None:
+            refuse_unless_fits(memory, MESH_LOAD_BYTES_PER_TRIANGLE * triangles, f"{source}: {where}.file: loading {file}")
+
     try:
-        return read_mesh(file, max_faces=max_faces)
+        return read_mesh(file, max_faces=max_faces, before_parse=before_parse)
     except MeshError as e:
         raise SceneError(source, f"{where}.file", f"{file}: {e}") from None
 

@@ -145,8 +145,15 @@ def _check_ply_header(head: bytes, max_faces: int) -> None:
                             f"the limit is {3 * max_faces}")
 
 
-def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None = None) -> dict:
+def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None = None,
+              before_parse=None) -> dict:
     """Read a mesh file into plain arrays, bounded and checked.
+
+    ``before_parse(triangles)``, if given, is called with an upper bound of
+    the triangles an OBJ's polygons make, once its bytes are read and before
+    trimesh parses them (the caller's memory check: one line of a 4 MB OBJ
+    listing a million vertices is a million triangles, far more than the
+    file's size suggests).
 
     Returns
     -------
@@ -182,8 +189,12 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         raise MeshError("the file is empty")
     if ext == "ply":
         _check_ply_header(data[:65536], max_faces)
-    elif ext == "obj" and data.count(b"\nf ") > max_faces:  # a face a line: counted before trimesh builds them
-        raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
+    elif ext == "obj":  # counted before trimesh builds them
+        triangles = _obj_triangle_bound(data)
+        if triangles > max_faces:
+            raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
+        if before_parse is not None:
+            before_parse(triangles)
     options = {}
     if ext in ("glb", "gltf"):  # instances multiply a small file's triangles: counted before trimesh builds them
         doc = _gltf_document(data, ext)
@@ -231,6 +242,19 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         raise MeshError("has only degenerate (zero-area) triangles")
     return dict(vertices=vertices, faces=faces[keep] if dropped else faces, vertex_normals=normals, uv=uv,
                 dropped=dropped)
+
+
+def _obj_triangle_bound(data: bytes) -> int:
+    """At least the triangles trimesh makes of an OBJ's faces (an n-gon is
+    n - 2 of them), by counting in C, never per line in Python: each vertex of
+    a face after the first follows a space or tab, and the file's other
+    lines (``v x y z``: three, ``vt u v``: two, ``vn``: three) account for
+    their own.  Comments or doubled spaces only raise the bound; for a file of
+    triangles it is about their number."""
+    separators = data.count(b" ") + data.count(b"\t")
+    others = 3 * data.count(b"\nv ") + 2 * data.count(b"\nvt ") + 3 * data.count(b"\nvn ")
+    faces = data.count(b"\nf ") + data.startswith(b"f ")
+    return max(faces, separators - others - 2 * faces)
 
 
 def _baked(scene, max_faces: int):
