@@ -220,3 +220,18 @@ def test_an_obj_of_huge_polygons_is_refused_before_trimesh_builds_them(tmp_path)
     ball.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(ball.vertices), 2)))
     text = trimesh.exchange.obj.export_obj(ball, include_normals=True, include_texture=True).encode()
     assert len(ball.faces) <= _obj_triangle_bound(text) <= len(ball.faces) + 8
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/stdin"), reason="needs /dev/stdin")
+def test_a_scene_read_from_a_pipe_is_held_to_the_budget_before_it_is_parsed(tmp_path):
+    """A pipe has no size to check before reading (an 11 MB scene on stdin
+    took the command past --memory 64M); its bytes are counted once read."""
+    import subprocess
+    import sys
+
+    lines = ["image: {width: 4, height: 4}", "materials: {m: {type: lambertian}}", "spheres:"]
+    lines += [f"  - {{center: [{i}, 0, -5], radius: 0.5, material: m}}" for i in range(200_000)]
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", "/dev/stdin", "-o", str(tmp_path / "o.npy"),
+                        "--memory", "64M"], input="\n".join(lines) + "\n", capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "loading /dev/stdin (11 MiB) needs about" in r.stderr, r.stderr
+    assert not (tmp_path / "o.npy").exists()

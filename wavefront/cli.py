@@ -485,7 +485,7 @@ def _render(args, signals: _Signals, started: float) -> int:
 def _refuse_unless_loading_fits(path: str, memory: int) -> None:
     """Refuse a scene file too big to load within the budget, before reading it."""
     from .memory import refuse_unless_fits
-    from .render import LOAD_BYTES_PER_FILE_BYTE
+    from .memory import LOAD_BYTES_PER_FILE_BYTE
 
     try:
         size = os.stat(path).st_size

@@ -105,6 +105,10 @@ def refuse_unless_fits(memory: int, need: int, what: str) -> None:
                                 f"memory budget of {memory / MiB:,.0f} MiB")
 
 
+# The scene loader's peak per byte of YAML, measured with ``benchmarks/bench.py
+# --section budget`` (200,000 and 1,000,000 spheres): a scene file too big to
+# load within a budget is refused before it is parsed.
+LOAD_BYTES_PER_FILE_BYTE = 8
 MIN_MEMORY = 64 * MiB  # the interpreter and NumPy alone take ~40 MiB
 
 

@@ -33,8 +33,8 @@ import numpy as np
 from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
 from .integrators import TRACERS
 from .memory import (  # noqa: F401 (MemoryBudgetError and the measures are part of this module's API)
-    MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
-    release_free_memory)
+    LOAD_BYTES_PER_FILE_BYTE, MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak,
+    physical_memory, refuse_unless_fits, release_free_memory)
 from .output import OutputError, check_output_path
 from .path import TraceStats
 from .sampling import scene_key
@@ -99,12 +99,11 @@ class RenderResult:
         return self.film.image()
 
 
-# What loading and compiling a scene take, measured with
-# ``benchmarks/bench.py --section budget`` (200,000 and 1,000,000 spheres):
-# the loader's peak per byte of YAML, and compile's (arrays, BVH) per
-# primitive.  They let a render that cannot fit be refused before the scene
+# What compiling a scene takes, measured with ``benchmarks/bench.py --section
+# budget`` (200,000 and 1,000,000 spheres): compile's (arrays, BVH) per
+# primitive (the loader's per byte of YAML, LOAD_BYTES_PER_FILE_BYTE, is in
+# memory.py).  They let a render that cannot fit be refused before the scene
 # is read, not after it has already overrun the budget.
-LOAD_BYTES_PER_FILE_BYTE = 8
 COMPILE_BYTES_PER_PRIMITIVE = 1024
 # A medium's boundary primitive costs more: the boundary gets its own
 # triangle set and BVH, its volume and the camera's winding number are

@@ -46,7 +46,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
 )
 from .media import Medium
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
-from .memory import check_budget, refuse_unless_fits
+from .memory import LOAD_BYTES_PER_FILE_BYTE, check_budget, refuse_unless_fits
 from .textures import image_load_bytes
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
@@ -453,6 +453,8 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
             data = f.read(MAX_FILE_BYTES + 1)
     except OSError as e:
         raise SceneError(source, "", f"cannot read: {e.strerror or e}") from None
+    if memory is not None and not size:  # a pipe (the command checked a file's size before reading it)
+        refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(data), f"loading {source} ({len(data) / MiB:,.0f} MiB)")
     name = os.path.splitext(os.path.basename(source))[0]
     with _collector_paused():
         doc = read_yaml(data, source, size=size)
