@@ -235,3 +235,22 @@ def test_a_scene_read_from_a_pipe_is_held_to_the_budget_before_it_is_parsed(tmp_
                         "--memory", "64M"], input="\n".join(lines) + "\n", capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "loading /dev/stdin (11 MiB) needs about" in r.stderr, r.stderr
     assert not (tmp_path / "o.npy").exists()
+
+
+def test_an_image_named_by_several_materials_is_decoded_once(tmp_path):
+    """One picture on 12 materials was decoded 12 times (~160 MiB for 1024x1024),
+    so a budget that held it once refused the scene."""
+    from PIL import Image
+
+    from wavefront import load_scene, render
+
+    Image.new("RGB", (16, 8), (200, 100, 50)).save(tmp_path / "wood.png")
+    materials = ", ".join(f"m{i}: {{type: lambertian, albedo: {{type: image, file: wood.png}}}}" for i in range(3))
+    spheres = ", ".join(f"{{center: [{i - 1}, 0, -3], radius: 0.4, material: m{i}}}" for i in range(3))
+    scene = load_scene(write_scene(tmp_path, f"image: {{width: 8, height: 8}}\nmaterials: {{{materials}}}\n"
+                                             f"spheres: [{spheres}]\n"))
+    pixels = [scene.materials[f"m{i}"].albedo.pixels for i in range(3)]
+    assert pixels[0] is pixels[1] is pixels[2] and not pixels[0].flags.writeable
+    assert render(scene, workers=1).shape == (8, 8, 3)
+    again = load_scene(tmp_path / "scene.yaml")  # another load decodes its own (nothing outlives a load)
+    assert again.materials["m0"].albedo.pixels is not pixels[0]

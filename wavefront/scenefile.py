@@ -47,7 +47,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
 from .media import Medium
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
 from .memory import LOAD_BYTES_PER_FILE_BYTE, check_budget, refuse_unless_fits
-from .textures import image_load_bytes
+from .textures import image_load_bytes, images_shared
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
 from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
@@ -456,7 +456,7 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
     if memory is not None and not size:  # a pipe (the command checked a file's size before reading it)
         refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(data), f"loading {source} ({len(data) / MiB:,.0f} MiB)")
     name = os.path.splitext(os.path.basename(source))[0]
-    with _collector_paused():
+    with _collector_paused(), images_shared():
         doc = read_yaml(data, source, size=size)
         del data
         return _scene_from_document(doc, source, name, consume=True, memory=memory)
