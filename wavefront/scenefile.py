@@ -46,7 +46,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
 )
 from .media import Medium
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
-from .memory import LOAD_BYTES_PER_FILE_BYTE, check_budget, refuse_unless_fits
+from .memory import LOAD_BYTES_PER_FILE_BYTE, MemoryBudgetError, check_budget, current_rss, refuse_unless_fits
 from .textures import image_load_bytes, images_shared
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
@@ -65,6 +65,14 @@ MAX_ALIAS_VALUES = 2_000_000  # values that aliases may add by expansion ("billi
 # memory where bytes alone do not (``[[], [], ...]`` is ~60 bytes of Python
 # per 3 bytes of file).  A million spheres are ~11 million values.
 MAX_VALUES = 16_000_000
+# ... and what each may cost while the scene is built: ~47 bytes a value on
+# average for a million spheres (11 million values, ~520 MiB), ~64 for an
+# empty list (its object and its slot in the parent).  With a memory budget
+# the document may hold only as many values as the budget has room for at
+# this size, counted as they are built, so a file of many small values
+# ([[], [], ...], 3 bytes each: 12 MB took 339 MiB) is refused near the
+# budget, not past twice it.
+YAML_BYTES_PER_VALUE = 64
 MAX_NESTING = 64  # no valid scene nests deeper than ~4
 MAX_NODES = MAX_ALIAS_VALUES  # the old name of the alias limit
 
@@ -208,6 +216,10 @@ _PLAIN = (True, False)  # the ``implicit`` of a plain scalar without a tag
 _CACHE_LIMIT = 1 << 16  # plain scalars remembered (keys, repeated values); random coordinates are not
 
 
+class _OverBudget(Exception):
+    """The document holds more values than the memory budget has room for."""
+
+
 class _Builder:
     """Plain Python values from a parser's events (one document).
 
@@ -217,7 +229,8 @@ class _Builder:
     Aliases share the anchored value, as PyYAML's constructor does.
     """
 
-    def __init__(self, parser):
+    def __init__(self, parser, max_values: int):
+        self.max_values = max_values
         self.get_event = parser.get_event
         self.resolve = parser.resolve
         self.anchors: dict[str, tuple[Any, int]] = {}
@@ -263,7 +276,9 @@ class _Builder:
 
     def count(self, values: int, event) -> None:
         self.values += values + 1
-        if self.values > MAX_VALUES:
+        if self.values > self.max_values:
+            if self.max_values < MAX_VALUES:
+                raise _OverBudget(self.max_values)
             raise _Problem(f"the document holds more than {MAX_VALUES} values (a million spheres are about "
                            "11 million); the limit bounds the memory a scene file can take", event.start_mark)
 
@@ -393,11 +408,13 @@ def _size_text(size: int) -> str:
     return f"{size / MiB:.1f} MiB ({size / 1e6:.1f} MB)"
 
 
-def read_yaml(data: bytes, source: str, *, size: int | None = None) -> Any:
+def read_yaml(data: bytes, source: str, *, size: int | None = None, max_values: int | None = None) -> Any:
     """Parse YAML bytes safely into plain values, raising :class:`SceneError` on any problem.
 
     ``size`` is the file's size when known (``data`` may hold only the first
-    ``MAX_FILE_BYTES + 1`` bytes of it).
+    ``MAX_FILE_BYTES + 1`` bytes of it).  A document of more than
+    ``max_values`` values (below ``MAX_VALUES``: what a memory budget holds)
+    raises :class:`MemoryBudgetError`.
     """
     if len(data) > MAX_FILE_BYTES:
         actual = (f"is {_size_text(size)}" if size and size > MAX_FILE_BYTES
@@ -410,7 +427,11 @@ def read_yaml(data: bytes, source: str, *, size: int | None = None) -> Any:
     parser = None
     try:
         parser = _Parser(data)
-        value = _Builder(parser).document()
+        value = _Builder(parser, MAX_VALUES if max_values is None else max_values).document()
+    except _OverBudget as e:
+        raise MemoryBudgetError(f"{source}: the document holds more than {e.args[0]:,} values, about "
+                                f"{YAML_BYTES_PER_VALUE} bytes each to load: more than the memory budget "
+                                "has room for") from None
     except _Problem as p:
         where = f" (line {p.mark.line + 1}, column {p.mark.column + 1})" if p.mark is not None else ""
         raise SceneError(source, p.path(), f"{p.problem}{where}") from None
@@ -457,7 +478,8 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
         refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(data), f"loading {source} ({len(data) / MiB:,.0f} MiB)")
     name = os.path.splitext(os.path.basename(source))[0]
     with _collector_paused(), images_shared():
-        doc = read_yaml(data, source, size=size)
+        room = None if memory is None else min(MAX_VALUES, max(0, memory - current_rss()) // YAML_BYTES_PER_VALUE)
+        doc = read_yaml(data, source, size=size, max_values=room)
         del data
         return _scene_from_document(doc, source, name, consume=True, memory=memory)
 
