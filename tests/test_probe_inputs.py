@@ -267,3 +267,14 @@ def test_a_document_of_many_small_values_is_held_to_the_budget_while_it_is_built
     path.write_text("name: [" + ",".join(["[]"] * 2_000_000) + "]\n")
     with pytest.raises(MemoryBudgetError, match="holds more than .* values"):
         load_scene(path, memory=current_rss() + 64 * 2**20)
+
+
+def test_frame_names_are_checked_as_they_are_made(tmp_path):
+    """``-o 'f_{frame:>5000}.png' --frames 100000`` built 500 MB of names
+    before the first write refused them, in a message of 5,000 characters."""
+    from wavefront.cli import frame_paths
+
+    with pytest.raises(ValueError, match="longer than the system allows") as e:
+        frame_paths(str(tmp_path / "f_{frame:>5000}.png"), 100_000)
+    assert len(str(e.value)) < 400
+    assert frame_paths("spin_{frame:03d}.png", 3) == ["spin_000.png", "spin_001.png", "spin_002.png"]

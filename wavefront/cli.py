@@ -257,6 +257,11 @@ def command() -> int:
     return status
 
 
+MAX_NAME_BYTES = 255  # a file name (Linux's NAME_MAX, and most file systems')
+MAX_PATH_BYTES = 4096  # a whole path (Linux's PATH_MAX)
+MAX_FRAME_NAME_BYTES = 64 << 20  # all of --frames' names together
+
+
 def frame_paths(output: str, frames: int | None) -> list[str]:
     """Output path of each frame: ``{frame}`` formatted, or ``_0000`` before the extension."""
     if "\0" in output:
@@ -266,10 +271,23 @@ def frame_paths(output: str, frames: int | None) -> list[str]:
             raise ValueError(f"{output}: names {{frame}} but --frames was not given")
         return [output]
     if "{frame" in output:
-        try:
-            paths = [output.format(frame=k) for k in range(frames)]
-        except (ValueError, KeyError, IndexError, AttributeError, TypeError) as e:
-            raise ValueError(f"{output}: bad {{frame}} pattern ({e})") from None
+        paths, total = [], 0
+        for k in range(frames):
+            try:
+                path = output.format(frame=k)
+            except (ValueError, KeyError, IndexError, AttributeError, TypeError) as e:
+                raise ValueError(f"{output}: bad {{frame}} pattern ({e})") from None
+            # checked as made: a pattern like {frame:>5000} built 100,000 names (500 MB) before
+            # the first write refused them, in a message of 5,000 characters
+            size = len(os.fsencode(path))
+            if size > MAX_PATH_BYTES or max(map(len, os.fsencode(path).split(b"/"))) > MAX_NAME_BYTES:
+                raise ValueError(f"{output[:200]}: the {{frame}} pattern makes a file name longer than the "
+                                 f"system allows ({MAX_NAME_BYTES} bytes a name, {MAX_PATH_BYTES} a path)")
+            total += size
+            if total > MAX_FRAME_NAME_BYTES:
+                raise ValueError(f"{output[:200]}: the frames' file names take more than "
+                                 f"{MAX_FRAME_NAME_BYTES >> 20} MiB")
+            paths.append(path)
     else:
         stem, ext = os.path.splitext(output)
         paths = [f"{stem}_{k:04d}{ext}" for k in range(frames)]
