@@ -49,7 +49,7 @@ OBJECT_CASES = [
     (lambda: Lambertian((1, -1, 1)), "<Lambertian>", "albedo[1]", ">= 0"),
     (lambda: Lambertian((1, 1)), "<Lambertian>", "albedo", "3 numbers"),
     (lambda: Metal(fuzz=-0.1), "<Metal>", "fuzz", ">= 0"),
-    (lambda: Dielectric(0), "<Dielectric>", "refraction_index", "> 0"),
+    (lambda: Dielectric(0), "<Dielectric>", "refraction_index", ">= 1e-06"),
     (lambda: Dielectric(math.inf), "<Dielectric>", "refraction_index", "finite"),
     (lambda: Emissive((1, 1, math.nan)), "<Emissive>", "color[2]", "finite"),
     (lambda: Phong(reflectivity=(0, 1.5, 0)), "<Phong>", "reflectivity[1]", "<= 1"),

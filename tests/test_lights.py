@@ -313,8 +313,10 @@ def test_an_emitter_of_astronomical_power_is_still_sampled():
 
     from wavefront import Emissive, Lambertian, Quad, Scene
 
-    scene = Scene(quads=[Quad((-1e6, 10, -1e6), (2e6, 0, 0), (0, 0, 2e6), "lamp"),
+    # the brightest colour allowed (MAX_COLOR, 1e30) on the largest quad allowed (edges ~1e76): power
+    # 4e182 stays finite now, but the pmf must still be a distribution (it was NaN at 1e300 x 4e12)
+    scene = Scene(quads=[Quad((-1e76, 10, -1e76), (2e76, 0, 0), (0, 0, 2e76), "lamp"),
                          Quad((-1, 0, -1), (0, 0, 2), (2, 0, 0), "floor")],
-                  materials={"lamp": Emissive((1e300, 1e300, 1e300)), "floor": Lambertian()}, width=4, height=4)
+                  materials={"lamp": Emissive((1e30, 1e30, 1e30)), "floor": Lambertian()}, width=4, height=4)
     table = scene.compile().emitters
     assert np.isfinite(table.pmf).all() and np.isclose(table.pmf.sum(), 1.0)

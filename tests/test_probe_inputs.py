@@ -278,3 +278,18 @@ def test_frame_names_are_checked_as_they_are_made(tmp_path):
         frame_paths(str(tmp_path / "f_{frame:>5000}.png"), 100_000)
     assert len(str(e.value)) < 400
     assert frame_paths("spin_{frame:03d}.png", 3) == ["spin_000.png", "spin_001.png", "spin_002.png"]
+
+
+@pytest.mark.parametrize("material, problem", [
+    ("{type: dielectric, refraction_index: 1e-300}", "refraction_index: must be >= 1e-06"),
+    ("{type: emissive, color: [1e300, 1, 1]}", "color[0]: must be <= 1e+30"),
+    ("{type: phong, shininess: 1e300}", "shininess: must be <= 1000000.0"),
+])
+def test_values_that_overflow_a_render_are_refused_at_load(tmp_path, material, problem):
+    """An index of 1e-300, an emitter of 1e300 or an exponent of 1e300 printed
+    NumPy overflow warnings (the emitter then rendered black, its samples
+    dropped as non-finite)."""
+    scene = write_scene(tmp_path, f"image: {{width: 4, height: 4}}\nmaterials: {{m: {material}}}\n"
+                                  "spheres: [{center: [0, 0, -1], radius: 0.5, material: m}]\n")
+    r = run("render", scene, "-o", tmp_path / "out.npy")
+    assert r.returncode == 2 and problem in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr

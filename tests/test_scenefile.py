@@ -78,7 +78,7 @@ CASES = [
     ("image.height", 2.5, "image.height", "integer"),
     ("image.depth", 3, "image.depth", "unknown key"),
     ("materials.gold.fuzz", -0.1, "materials.gold.fuzz", ">= 0"),
-    ("materials.glass.refraction_index", 0, "materials.glass.refraction_index", "> 0"),
+    ("materials.glass.refraction_index", 0, "materials.glass.refraction_index", ">= 1e-06"),
     ("materials.glass.type", "plastic", "materials.glass.type", "unknown value"),
     ("materials.ground.albedo", [1, 1, -1], "materials.ground.albedo[2]", ">= 0"),
     ("materials.ground.roughness", 1, "materials.ground.roughness", "unknown key"),

@@ -31,6 +31,11 @@ from .vecmath import dot, gather, normalize, reflect, refract, scatter, schlick
 # random vector is nearly -n; below this squared length fall back to n (the
 # book's near_zero() uses 1e-8 per component).
 DEGENERATE_SQUARED_LENGTH = 1e-16
+# Bounds far outside any real material (indices ~1-4, a Phong exponent of 1e4
+# is already a mirror) that keep a render's float32 arithmetic finite: an
+# index of 1e-300 or an exponent of 1e300 printed NumPy overflow warnings.
+MIN_REFRACTION_INDEX = 1e-6
+MAX_SHININESS = 1e6
 
 RGB = tuple[float, float, float]
 
@@ -101,7 +106,8 @@ class Dielectric:
 
     def __post_init__(self):
         object.__setattr__(self, "refraction_index",
-                           number(self, self.refraction_index, "refraction_index", low=0.0, low_open=True))
+                           number(self, self.refraction_index, "refraction_index", low=MIN_REFRACTION_INDEX,
+                                  high=1.0 / MIN_REFRACTION_INDEX))
 
 
 @dataclass(frozen=True)
@@ -150,7 +156,7 @@ class Phong:
     def __post_init__(self):
         for key in ("ambient", "diffuse", "specular"):
             object.__setattr__(self, key, color(self, getattr(self, key), key))
-        object.__setattr__(self, "shininess", number(self, self.shininess, "shininess", low=0.0))
+        object.__setattr__(self, "shininess", number(self, self.shininess, "shininess", low=0.0, high=MAX_SHININESS))
         object.__setattr__(self, "reflectivity", color(self, self.reflectivity, "reflectivity", high=1.0))
 
 

@@ -145,9 +145,15 @@ def vec3(obj, value, path: str, *, low=None, high=None) -> tuple[float, float, f
     return tuple(number(obj, v, f"{path}[{i}]", low=low, high=high) for i, v in enumerate(value))
 
 
+# A colour (albedo, emission, background) above this overflows a render's
+# float32 arithmetic on its way to the film: an emitter of 1e300 rendered
+# black, its samples dropped as non-finite, after NumPy's overflow warnings.
+MAX_COLOR = 1e30
+
+
 def color(obj, value, path: str, *, high=None) -> tuple[float, float, float]:
-    """An RGB triple: three finite numbers >= 0 (and <= ``high`` if given)."""
-    return vec3(obj, value, path, low=0.0, high=high)
+    """An RGB triple: three finite numbers >= 0 and <= ``MAX_COLOR`` (or ``high``)."""
+    return vec3(obj, value, path, low=0.0, high=MAX_COLOR if high is None else min(high, MAX_COLOR))
 
 
 def string(obj, value, path: str, choices=None) -> str:
