@@ -218,8 +218,7 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     except MemoryError:
         raise MeshError("too large to load") from None
     except Exception as e:  # trimesh reports malformed files with many exception types
-        text = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise MeshError(f"cannot be read as {ext.upper()}: {text[:200]}") from None
+        raise MeshError(f"cannot be read as {ext.upper()}: {_reader_problem(e)}") from None
     if faces.shape[0] == 0:
         raise MeshError("has no triangles")
     if not np.isfinite(vertices).all():
@@ -242,6 +241,19 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         raise MeshError("has only degenerate (zero-area) triangles")
     return dict(vertices=vertices, faces=faces[keep] if dropped else faces, vertex_normals=normals, uv=uv,
                 dropped=dropped)
+
+
+def _reader_problem(e: Exception) -> str:
+    """What trimesh's exception says, as the end of one line: a bare KeyError
+    ("'uri'") or AttributeError from a glTF's JSON said nothing of the file."""
+    text = (str(e).splitlines() or [""])[0][:200]
+    if isinstance(e, KeyError):
+        return f"a required entry {text} is missing"
+    if isinstance(e, (AttributeError, TypeError)):
+        return f"an entry has the wrong type ({text})"
+    if isinstance(e, (AssertionError, IndexError)) or not text:
+        return f"malformed ({type(e).__name__}{': ' + text if text else ''})"
+    return text
 
 
 def _obj_triangle_bound(data: bytes) -> int:
