@@ -275,8 +275,19 @@ _BYTE_SHIFTS = tuple(_U32(8 * b) for b in range(4))
 _SWAPS = tuple((_U32(s), _U32(m)) for s, m in ((4, 0x0F0F0F0F), (2, 0x33333333), (1, 0x55555555)))
 
 
+# Below this many values a table of reversed bytes wins: two calls (a byte
+# lookup, a byte swap) instead of thirteen, 1.2 us instead of 3.8 on 32
+# values; from ~2 Ki values the shifts win (the lookup's index conversion).
+_BYTE_TABLE_MAX = 1024
+_REVERSED_BYTES = np.array([int(f"{i:08b}"[::-1], 2) for i in range(256)], dtype=np.uint8)
+
+
 def reverse_bits(x: np.ndarray) -> np.ndarray:
     """Bit reversal of a uint32 array (bit 0 <-> bit 31), in place; returns ``x``."""
+    if x.size <= _BYTE_TABLE_MAX and x.flags.c_contiguous:
+        bytes_ = x.view(np.uint8)
+        _REVERSED_BYTES.take(bytes_, out=bytes_)
+        return x.byteswap(inplace=True)
     x.byteswap(inplace=True)
     t = np.empty_like(x)
     for shift, mask in _SWAPS:
@@ -520,13 +531,12 @@ def _to_unit(v: np.ndarray, dtype) -> np.ndarray:
     at most ``1 - 2^-32``), the top 24 in float32 (exact, at most
     ``1 - 2^-24``): never 1, which is what pbrt's OneMinusEpsilon clamp is for
     when it rounds 32 bits into a float."""
-    out = np.empty(v.shape, dtype=dtype)
-    if np.dtype(dtype) == np.float32:
+    if dtype is np.float32 or np.dtype(dtype) == np.float32:
+        out = np.empty(v.shape, dtype=np.float32)
         # converted and scaled in float32 (exact below 2^24): a float64 loop cast down took twice as long
         np.multiply(v >> _S8U, _TO_UNIT_24_F32, out=out, dtype=np.float32, casting="unsafe")
-    else:
-        np.multiply(v, _TO_UNIT_32, out=out)
-    return out
+        return out
+    return np.multiply(v, _TO_UNIT_32)  # uint32 * float64: float64
 
 
 SAMPLERS = ("sobol", "independent")
