@@ -133,11 +133,9 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     """
     pixel, sample_id = job.samples(start, stop)
     state = sampler.start(pixel, sample_id)
-    # a pinhole never reads the lens pair: not drawing it changes no number
-    u = np.empty((4 if frame.has_defocus else 2, stop - start))
-    sampler.pairs(state, 0, out=u[:2])  # pixel jitter
-    if frame.has_defocus:
-        sampler.pairs(state, 1, out=u[2:])  # lens (no concatenate: written in place)
+    u = sampler.pairs(state, 0)  # pixel jitter
+    if frame.has_defocus:  # a pinhole never reads the lens pair: not drawing it changes no number
+        u = np.concatenate((u, sampler.pairs(state, 1)))
     if pixel_centres:
         u[:2] = 0.5
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision

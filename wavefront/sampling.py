@@ -152,7 +152,7 @@ _TO_UNIT_24 = _const(2.0**-24, np.float64)
 _TO_UNIT_24_F32 = _const(2.0**-24, np.float32)
 
 
-def _split_pairs(z: np.ndarray, dtype=np.float64, out: np.ndarray | None = None) -> np.ndarray:
+def _split_pairs(z: np.ndarray, dtype=np.float64) -> np.ndarray:
     """Two uniforms in [0, 1) from one 64-bit hash: 32 bits each in float64,
     24 bits each in float32 (all a float32 can hold below 1, so 1 is never
     reached).
@@ -161,8 +161,7 @@ def _split_pairs(z: np.ndarray, dtype=np.float64, out: np.ndarray | None = None)
     the cost of random numbers, the largest single item of a bounce after
     intersection.
     """
-    if out is None:
-        out = np.empty((2, z.shape[0]), dtype=dtype)
+    out = np.empty((2, z.shape[0]), dtype=dtype)
     if np.dtype(dtype) == np.float32:
         np.multiply(z >> _S40, _TO_UNIT_24, out=out[0], casting="unsafe")
         np.multiply((z >> _S8) & _LOW24, _TO_UNIT_24, out=out[1], casting="unsafe")
@@ -172,9 +171,9 @@ def _split_pairs(z: np.ndarray, dtype=np.float64, out: np.ndarray | None = None)
     return out
 
 
-def uniform_pairs(state: np.ndarray, pair: int, dtype=np.float64, out: np.ndarray | None = None) -> np.ndarray:
+def uniform_pairs(state: np.ndarray, pair: int, dtype=np.float64) -> np.ndarray:
     """Uniforms for dimensions ``2 pair`` and ``2 pair + 1``; shape (2, N)."""
-    return _split_pairs(mix64(state + _pair_offset(pair)), dtype, out)
+    return _split_pairs(mix64(state + _pair_offset(pair)), dtype)
 
 
 @functools.lru_cache(maxsize=256)
@@ -183,10 +182,9 @@ def _pair_offset(pair: int) -> np.ndarray:
     return _U64((0x9E3779B97F4A7C15 * (pair + 1)) & 0xFFFFFFFFFFFFFFFF)
 
 
-def uniform_pairs_at(state: np.ndarray, pair: np.ndarray, dtype=np.float64,
-                     out: np.ndarray | None = None) -> np.ndarray:
+def uniform_pairs_at(state: np.ndarray, pair: np.ndarray, dtype=np.float64) -> np.ndarray:
     """Like :func:`uniform_pairs` with a per-path pair index; shape (2, N)."""
-    return _split_pairs(mix64(state + _GOLDEN * (pair.astype(np.uint64) + _ONE64)), dtype, out)
+    return _split_pairs(mix64(state + _GOLDEN * (pair.astype(np.uint64) + _ONE64)), dtype)
 
 
 # -- the low-discrepancy sampler (shuffled, scrambled Sobol') ---------------------------
@@ -498,8 +496,7 @@ def pixel_seeds(state: np.ndarray) -> np.ndarray:
     return (state >> _S32).astype(np.uint32)
 
 
-def sobol_points(state: np.ndarray, seeds: np.ndarray, index_bits: int, dtype=np.float64,
-                 out: np.ndarray | None = None) -> np.ndarray:
+def sobol_points(state: np.ndarray, seeds: np.ndarray, index_bits: int, dtype=np.float64) -> np.ndarray:
     """The shuffled, scrambled Sobol' points of samples ``state`` under the
     words ``seeds`` (``(3, N)``, as :func:`pair_seeds`); uniforms, shape (2, N).
 
@@ -521,27 +518,25 @@ def sobol_points(state: np.ndarray, seeds: np.ndarray, index_bits: int, dtype=np
     else:
         v = _net_points(shuffled, index_bits)
     v = reverse_bits(owen_scramble_premixed(v, seeds[1:], multiplier))
-    return _to_unit(v, dtype, out)
+    return _to_unit(v, dtype)
 
 
-def sobol_pairs(state: np.ndarray, pair, index_bits: int, dtype=np.float64,
-                out: np.ndarray | None = None) -> np.ndarray:
+def sobol_pairs(state: np.ndarray, pair, index_bits: int, dtype=np.float64) -> np.ndarray:
     """Pair ``pair`` (an int, or one per path) of samples ``state``; shape (2, N)."""
-    return sobol_points(state, pair_seeds(pixel_seeds(state), pair), index_bits, dtype, out)
+    return sobol_points(state, pair_seeds(pixel_seeds(state), pair), index_bits, dtype)
 
 
-def _to_unit(v: np.ndarray, dtype, out: np.ndarray | None = None) -> np.ndarray:
+def _to_unit(v: np.ndarray, dtype) -> np.ndarray:
     """uint32 ``(2, N)`` to uniforms in [0, 1): all 32 bits in float64 (exact,
     at most ``1 - 2^-32``), the top 24 in float32 (exact, at most
     ``1 - 2^-24``): never 1, which is what pbrt's OneMinusEpsilon clamp is for
     when it rounds 32 bits into a float."""
     if dtype is np.float32 or np.dtype(dtype) == np.float32:
-        if out is None:
-            out = np.empty(v.shape, dtype=np.float32)
+        out = np.empty(v.shape, dtype=np.float32)
         # converted and scaled in float32 (exact below 2^24): a float64 loop cast down took twice as long
         np.multiply(v >> _S8U, _TO_UNIT_24_F32, out=out, dtype=np.float32, casting="unsafe")
         return out
-    return np.multiply(v, _TO_UNIT_32, out=out)  # uint32 * float64: float64
+    return np.multiply(v, _TO_UNIT_32)  # uint32 * float64: float64
 
 
 SAMPLERS = ("sobol", "independent")
@@ -594,14 +589,13 @@ class Sampler:
         state |= _premixed_reversed_index(index, self.index_bits)
         return state
 
-    def pairs(self, state: np.ndarray, pair, dtype=np.float64, out: np.ndarray | None = None) -> np.ndarray:
-        """Uniforms for pair ``pair`` (an int, or one per path) of each path;
-        shape (2, N), written into ``out`` (of ``dtype``) if given."""
+    def pairs(self, state: np.ndarray, pair, dtype=np.float64) -> np.ndarray:
+        """Uniforms for pair ``pair`` (an int, or one per path) of each path; shape (2, N)."""
         if self.kind == "independent":
             if isinstance(pair, (int, np.integer)):
-                return uniform_pairs(state, int(pair), dtype, out)
-            return uniform_pairs_at(state, pair, dtype, out)
-        return sobol_pairs(state, pair, self.index_bits, dtype, out)
+                return uniform_pairs(state, int(pair), dtype)
+            return uniform_pairs_at(state, pair, dtype)
+        return sobol_pairs(state, pair, self.index_bits, dtype)
 
 
 def _cos_2pi(u: np.ndarray) -> np.ndarray:
