@@ -125,8 +125,9 @@ def render_sampler(cs: CompiledScene, key) -> Sampler:
 
 
 def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: int, stop: int,
-                 pixel_centres: bool = False) -> PathBatch:
-    """Stage 1: new paths for the job's slots ``start:stop``.
+                 pixel_centres: bool = False, before: PathBatch | None = None) -> PathBatch:
+    """Stage 1: new paths for the job's slots ``start:stop``, after the paths
+    of ``before`` if given (as ``PathBatch.concat(before, new)``).
 
     ``pixel_centres`` puts every sample at its pixel's centre instead of
     jittering it (classic Whitted with one sample per pixel).
@@ -139,25 +140,53 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     if pixel_centres:
         u[:2] = 0.5
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
-    origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
     time = sampler.pairs(state, TIME_PAIR)[0] if cs.shapes.moving else None
+    joining = before is not None and len(before) > 0
+
+    def join(name, new=None, value=None, dtype=None, rows=None):
+        if not joining:
+            if new is None:
+                return np.full(n if rows is None else (rows, n), value, dtype=dtype)
+            return new if dtype is None else new.astype(dtype, copy=False)
+        # written straight into the joined arrays: no arrays of the new paths
+        # alone, then a copy of them (the refill's concatenate) and of the
+        # rays at the render's precision; ~5 ns a camera ray
+        old = getattr(before, name)
+        return None if old is None else _joined(old, n, new, value, dtype)
+
     return PathBatch(
-        origin=origin,
-        direction=direction,
-        throughput=np.ones((3, n), dtype=origin.dtype),
-        slot=np.arange(start, stop, dtype=np.int64),
-        state=state,
-        depth=np.zeros(n, dtype=np.int32),
-        bsdf_pdf=np.zeros(n),
-        specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
-        eta_scale=np.ones(n),
-        time=time,
+        origin=join("origin", origin, dtype=cs.dtype),
+        direction=join("direction", direction, dtype=cs.dtype),
+        throughput=join("throughput", value=1.0, dtype=cs.dtype, rows=3),
+        slot=join("slot", np.arange(start, stop, dtype=np.int64)),
+        state=join("state", state),
+        depth=join("depth", value=0, dtype=np.int32),
+        bsdf_pdf=join("bsdf_pdf", value=0.0, dtype=np.float64),
+        specular=join("specular", value=True, dtype=bool),  # seen from the camera: emission counts in full
+        eta_scale=join("eta_scale", value=1.0, dtype=np.float64),
+        time=None if time is None else join("time", time),
         # camera rays start in the media around the camera
-        media_mask=None if cs.media is None else np.full(n, cs.media.camera_mask, dtype=np.uint64),
+        media_mask=None if cs.media is None else join("media_mask", value=cs.media.camera_mask, dtype=np.uint64),
     )
+
+
+def _joined(old: np.ndarray, n: int, new=None, value=None, dtype=None) -> np.ndarray:
+    """``old``'s columns (the last axis), then ``n`` new ones: ``new``
+    converted to ``dtype``, or the constant ``value`` of ``dtype``.  The same
+    array (type and values) as ``np.concatenate((old, new.astype(dtype)),
+    axis=-1)``, with one allocation and one pass over the new columns."""
+    dtype = np.dtype(new.dtype if dtype is None else dtype)
+    out_dtype = np.result_type(old.dtype, dtype)
+    if new is not None and out_dtype != dtype:
+        new = new.astype(dtype)  # rounded to ``dtype`` first, as a separate conversion would
+    m = old.shape[-1]
+    out = np.empty(old.shape[:-1] + (m + n,), dtype=out_dtype)
+    out[..., :m] = old
+    out[..., m:] = new if new is not None else value
+    return out
 
 
 # Scatter kernels: ``albedo`` is the rows' textured albedo (3, n), or None to
@@ -264,7 +293,7 @@ def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch
     free = capacity - len(live)
     if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
         stop = min(job.size, next_slot + free)
-        live = PathBatch.concat(live, camera_paths(cs, frame, sampler, job, next_slot, stop))
+        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live)
         next_slot = stop
     return live, next_slot
 
