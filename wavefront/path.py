@@ -266,10 +266,13 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
             shared = shared_choice_pairs(sampler, emitters, roulette, live, diffuse, absorbed, settings.depth)
+            # passed only when drawn, so that a stage with the plain signature
+            # (a test's biased roulette) still plugs in
+            shared_arg = {} if shared is None else {"shared": shared}
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
-                                                                    absorbed, settings.depth, albedo, shared))
+                                                                    absorbed, settings.depth, albedo, **shared_arg))
         if shadows is not None:
             trace_shadow_rays(cs, shadows, radiance, stats)
         if len(live):
@@ -277,7 +280,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             if diffuse is not None:
                 record_sampling(cs, live, surface, diffuse, direction)
             if roulette is not None:
-                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, shared)
+                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, **shared_arg)
             if cs.media is not None:
                 cross_interfaces(cs, live, surface, direction, absorbed)
             live = advance(live, surface, direction, absorbed, settings.depth)
