@@ -102,6 +102,10 @@ FIRST_BACKOFF = 2.0 * T_MIN
 # cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
 # the light than that is missed, 1e-4 of the distance.
 SHADOW_EPSILON = 1e-4
+# Light choice and roulette share one draw of their pair (shared_choice_pairs)
+# on batches up to this size, where a call's fixed cost (~10 us) outweighs the
+# scatter and gathers sharing adds (~5 ns a path).
+SHARED_PAIR_MAX_PATHS = 2048
 # Roulette never keeps a path with certainty (Mitsuba's cap): a path whose
 # throughput stays near 1 (a white furnace) still ends in finite time.
 ROULETTE_MAX_SURVIVAL = 0.95
@@ -482,14 +486,21 @@ def shared_choice_pairs(sampler: Sampler, emitters, roulette, live: PathBatch, d
     roulette on); else None, and each draws its own.  The numbers are the
     same either way (a pure function of path and pair): this saves a call
     per bounce (~10 us, the cost of a near-empty bounce's draw) and the
-    draws of paths reading both.  Shape (2, N); columns no one reads are
+    draws of paths reading both; on large batches the scatter and gathers
+    cost more than that (Cornell spheres with three lamps: 2.5 % slower
+    overall), hence only up to SHARED_PAIR_MAX_PATHS paths: the tail.  Shape (2, N); columns no one reads are
     undefined.  Roulette's rows are a subset: it reads paths not absorbed
     (``absorbed`` only grows until then) at ``depth + 1 >= roulette.depth``.
     """
-    if roulette is None or emitters is None or len(emitters) == 1:
+    if roulette is None or emitters is None or len(emitters) == 1 or len(live) > SHARED_PAIR_MAX_PATHS:
         return None
     after = live.depth + 1
-    rows = np.flatnonzero(~absorbed & ((diffuse & (after < max_depth)) | (after >= roulette.depth)))
+    late = after >= roulette.depth
+    if not late.any():
+        return None  # no roulette this bounce (the first few): nothing to share
+    rows = np.flatnonzero(~absorbed & ((diffuse & (after < max_depth)) | late))
+    if rows.size == len(live):  # every path: no gather, no scatter
+        return sampler.pairs(live.state, light_choice_dimension(live.depth))
     u = np.empty((2, len(live)))
     u[:, rows] = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))
     return u
