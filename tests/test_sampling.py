@@ -305,6 +305,19 @@ def test_reverse_bits(x):
     assert reverse_bits(v).tolist() == [_reverse_bits_int(a) for a in x]
 
 
+@pytest.mark.parametrize("shape", [(1,), (2, 512), (1025,), (2, 513), (3000,)])
+def test_reverse_bits_byte_table_and_shifts_agree(shape):
+    """Small arrays are reversed by a byte table, large ones by shifts: the
+    two must give the same bits on each side of the switch (and on a
+    non-contiguous view, which takes the shifts)."""
+    v = np.random.default_rng(3).integers(0, 2**32, shape, dtype=np.uint32)
+    expected = np.array([_reverse_bits_int(int(a)) for a in v.ravel()], dtype=np.uint32).reshape(shape)
+    assert (reverse_bits(v.copy()) == expected).all()
+    if v.ndim == 2:
+        strided = v.copy().T  # not C-contiguous
+        assert (reverse_bits(strided) == expected.T).all()
+
+
 def test_unscrambled_sobol_points_are_the_textbook_ones():
     """Dimension 0 is van der Corput's sequence, dimension 1 Pascal's matrix
     mod 2 (pbrt-v4's SobolMatrices32 columns 0x80000000, 0xc0000000, 0xa0000000, 0xf0000000, ...)."""
