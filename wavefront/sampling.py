@@ -376,16 +376,18 @@ _S15U, _ONE32 = _U32(15), _U32(1)
 _SHIFT_TO_TOP = tuple(_U32(32 - k) for k in range(33))
 
 
-def _hash32(x: np.ndarray) -> np.ndarray:
-    """A 32-bit avalanching bijection of uint32 arrays (Wellons' "lowbias32"), in place."""
+def _hash32(x: np.ndarray, last_step: bool = True) -> np.ndarray:
+    """A 32-bit avalanching bijection of uint32 arrays (Wellons' "lowbias32"),
+    in place; without its last step (``x ^= x >> 16``) if ``last_step`` is false."""
     t = x >> _S16U
     x ^= t
     x *= _LOWBIAS_0
     np.right_shift(x, _S15U, out=t)
     x ^= t
     x *= _LOWBIAS_1
-    np.right_shift(x, _S16U, out=t)
-    x ^= t
+    if last_step:
+        np.right_shift(x, _S16U, out=t)
+        x ^= t
     return x
 
 
@@ -435,13 +437,7 @@ def pair_seeds(pixel_seed: np.ndarray, pair) -> np.ndarray:
         # done twice it is the identity (``x ^ (x >> 16)`` keeps x's high
         # half, so shifting it right gives ``x >> 16`` again), so both go:
         # lowbias32 without its last step, 4 fewer calls
-        x = pair.astype(np.uint32)
-        t = x >> _S16U
-        x ^= t
-        x *= _LOWBIAS_0
-        np.right_shift(x, _S15U, out=t)
-        x ^= t
-        x *= _LOWBIAS_1
+        x = _hash32(pair.astype(np.uint32), last_step=False)
         x ^= pixel_seed
     words = x * _ROW_MULTIPLIERS[0]
     t = words >> _S15U
