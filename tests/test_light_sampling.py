@@ -247,21 +247,3 @@ def test_a_black_emitter_beside_a_lit_one_adds_nothing_and_breaks_nothing():
     image = render(dark.with_overrides(samples_per_pixel=8), workers=1)
     assert np.isfinite(image).all()
     assert len(dark.compile().emitters) == 1
-
-
-@pytest.mark.parametrize("max_paths", [None, 1 << 30])
-def test_light_choice_and_roulette_share_their_pair_without_changing_a_number(monkeypatch, max_paths):
-    """With several emitters and roulette on, the light choice and roulette
-    read one draw of their pair (on small batches, or on every batch when
-    allowed): the image is bit for bit the one where each draws its own."""
-    scene = load_scene(SCENES / "simple_light.yaml").with_overrides(width=40, height=24, samples_per_pixel=8)
-    assert scene.render.russian_roulette is not None
-    if max_paths is not None:
-        monkeypatch.setattr(wavefront.path, "SHARED_PAIR_MAX_PATHS", max_paths)
-    shared = render(scene, workers=1, chunk_size=700)
-    drawn = []
-    share = wavefront.path.shared_choice_pairs
-    monkeypatch.setattr(wavefront.path, "shared_choice_pairs", lambda *a: drawn.append(share(*a)) or None)
-    separate = render(scene, workers=1, chunk_size=700)
-    assert any(u is not None for u in drawn)  # the shared draw ran
-    assert shared.tobytes() == separate.tobytes()

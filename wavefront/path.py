@@ -102,10 +102,6 @@ FIRST_BACKOFF = 2.0 * T_MIN
 # cannot find the emitter itself (pbrt's ShadowEpsilon); a blocker closer to
 # the light than that is missed, 1e-4 of the distance.
 SHADOW_EPSILON = 1e-4
-# Light choice and roulette share one draw of their pair (shared_choice_pairs)
-# on batches up to this size, where a call's fixed cost (~10 us) outweighs the
-# scatter and gathers sharing adds (~5 ns a path).
-SHARED_PAIR_MAX_PATHS = 2048
 # Roulette never keeps a path with certainty (Mitsuba's cap): a path whose
 # throughput stays near 1 (a white furnace) still ends in finite time.
 ROULETTE_MAX_SURVIVAL = 0.95
@@ -129,9 +125,8 @@ def render_sampler(cs: CompiledScene, key) -> Sampler:
 
 
 def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: int, stop: int,
-                 pixel_centres: bool = False, before: PathBatch | None = None) -> PathBatch:
-    """Stage 1: new paths for the job's slots ``start:stop``, after the paths
-    of ``before`` if given (as ``PathBatch.concat(before, new)``).
+                 pixel_centres: bool = False) -> PathBatch:
+    """Stage 1: new paths for the job's slots ``start:stop``.
 
     ``pixel_centres`` puts every sample at its pixel's centre instead of
     jittering it (classic Whitted with one sample per pixel).
@@ -144,53 +139,25 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     if pixel_centres:
         u[:2] = 0.5
     origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
+    origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
     time = sampler.pairs(state, TIME_PAIR)[0] if cs.shapes.moving else None
-    joining = before is not None and len(before) > 0
-
-    def join(name, new=None, value=None, dtype=None, rows=None):
-        if not joining:
-            if new is None:
-                return np.full(n if rows is None else (rows, n), value, dtype=dtype)
-            return new if dtype is None else new.astype(dtype, copy=False)
-        # written straight into the joined arrays: no arrays of the new paths
-        # alone, then a copy of them (the refill's concatenate) and of the
-        # rays at the render's precision; ~5 ns a camera ray
-        old = getattr(before, name)
-        return None if old is None else _joined(old, n, new, value, dtype)
-
     return PathBatch(
-        origin=join("origin", origin, dtype=cs.dtype),
-        direction=join("direction", direction, dtype=cs.dtype),
-        throughput=join("throughput", value=1.0, dtype=cs.dtype, rows=3),
-        slot=join("slot", np.arange(start, stop, dtype=np.int64)),
-        state=join("state", state),
-        depth=join("depth", value=0, dtype=np.int32),
-        bsdf_pdf=join("bsdf_pdf", value=0.0, dtype=np.float64),
-        specular=join("specular", value=True, dtype=bool),  # seen from the camera: emission counts in full
-        eta_scale=join("eta_scale", value=1.0, dtype=np.float64),
-        time=None if time is None else join("time", time),
+        origin=origin,
+        direction=direction,
+        throughput=np.ones((3, n), dtype=origin.dtype),
+        slot=np.arange(start, stop, dtype=np.int64),
+        state=state,
+        depth=np.zeros(n, dtype=np.int32),
+        bsdf_pdf=np.zeros(n),
+        specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
+        eta_scale=np.ones(n),
+        time=time,
         # camera rays start in the media around the camera
-        media_mask=None if cs.media is None else join("media_mask", value=cs.media.camera_mask, dtype=np.uint64),
+        media_mask=None if cs.media is None else np.full(n, cs.media.camera_mask, dtype=np.uint64),
     )
-
-
-def _joined(old: np.ndarray, n: int, new=None, value=None, dtype=None) -> np.ndarray:
-    """``old``'s columns (the last axis), then ``n`` new ones: ``new``
-    converted to ``dtype``, or the constant ``value`` of ``dtype``.  The same
-    array (type and values) as ``np.concatenate((old, new.astype(dtype)),
-    axis=-1)``, with one allocation and one pass over the new columns."""
-    dtype = np.dtype(new.dtype if dtype is None else dtype)
-    out_dtype = np.result_type(old.dtype, dtype)
-    if new is not None and out_dtype != dtype:
-        new = new.astype(dtype)  # rounded to ``dtype`` first, as a separate conversion would
-    m = old.shape[-1]
-    out = np.empty(old.shape[:-1] + (m + n,), dtype=out_dtype)
-    out[..., :m] = old
-    out[..., m:] = new if new is not None else value
-    return out
 
 
 # Scatter kernels: ``albedo`` is the rows' textured albedo (3, n), or None to
@@ -269,14 +236,10 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             absorbed = emitted(cs, live, surface, radiance, emitters, gone)
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
-            shared = shared_choice_pairs(sampler, emitters, roulette, live, diffuse, absorbed, settings.depth)
-            # passed only when drawn, so that a stage with the plain signature
-            # (a test's biased roulette) still plugs in
-            shared_arg = {} if shared is None else {"shared": shared}
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
-                                                                    absorbed, settings.depth, albedo, **shared_arg))
+                                                                    absorbed, settings.depth, albedo))
         if shadows is not None:
             trace_shadow_rays(cs, shadows, radiance, stats)
         if len(live):
@@ -284,7 +247,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             if diffuse is not None:
                 record_sampling(cs, live, surface, diffuse, direction)
             if roulette is not None:
-                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, **shared_arg)
+                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth)
             if cs.media is not None:
                 cross_interfaces(cs, live, surface, direction, absorbed)
             live = advance(live, surface, direction, absorbed, settings.depth)
@@ -300,7 +263,7 @@ def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch
     free = capacity - len(live)
     if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
         stop = min(job.size, next_slot + free)
-        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live)
+        live = PathBatch.concat(live, camera_paths(cs, frame, sampler, job, next_slot, stop))
         next_slot = stop
     return live, next_slot
 
@@ -433,19 +396,18 @@ def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
 
 
 def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch, surface, diffuse, absorbed,
-                  max_depth: int, albedo=None, shared=None) -> ShadowBatch:
+                  max_depth: int, albedo=None) -> ShadowBatch:
     """Stage 5: one light sample per diffuse vertex, as a shadow ray.
 
     Only paths allowed another segment take one (the shadow ray is that
     segment), so light sampling and material sampling see paths of the same
     lengths.  The contribution is
     ``throughput * albedo / pi * cos * radiance * w_light / p_light``.
-    ``shared``: :func:`shared_choice_pairs`'s, or None.
     """
     rows = np.flatnonzero(diffuse & ~absorbed & (live.depth + 1 < max_depth))
     state, depth = live.state.take(rows), live.depth.take(rows)
     u_point = sampler.pairs(state, light_point_dimension(depth))
-    u_choice = light_choice(sampler, emitters, state, depth) if shared is None else shared[0].take(rows)
+    u_choice = light_choice(sampler, emitters, state, depth)
     point = gather(surface.point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(point, u_choice, u_point, time)
@@ -477,33 +439,6 @@ def light_choice(sampler: Sampler, emitters, state, depth):
     if len(emitters) == 1:
         return None
     return sampler.pairs(state, light_choice_dimension(depth))[0]
-
-
-def shared_choice_pairs(sampler: Sampler, emitters, roulette, live: PathBatch, diffuse, absorbed, max_depth: int):
-    """The pair choosing the light (its first uniform) and deciding roulette
-    (its second) at each path's vertex, drawn in one call for every path that
-    will read either half, when both are read (several emitters and
-    roulette on); else None, and each draws its own.  The numbers are the
-    same either way (a pure function of path and pair): this saves a call
-    per bounce (~10 us, the cost of a near-empty bounce's draw) and the
-    draws of paths reading both; on large batches the scatter and gathers
-    cost more than that (Cornell spheres with three lamps: 2.5 % slower
-    overall), hence only up to SHARED_PAIR_MAX_PATHS paths: the tail.  Shape (2, N); columns no one reads are
-    undefined.  Roulette's rows are a subset: it reads paths not absorbed
-    (``absorbed`` only grows until then) at ``depth + 1 >= roulette.depth``.
-    """
-    if roulette is None or emitters is None or len(emitters) == 1 or len(live) > SHARED_PAIR_MAX_PATHS:
-        return None
-    after = live.depth + 1
-    late = after >= roulette.depth
-    if not late.any():
-        return None  # no roulette this bounce (the first few): nothing to share
-    rows = np.flatnonzero(~absorbed & ((diffuse & (after < max_depth)) | late))
-    if rows.size == len(live):  # every path: no gather, no scatter
-        return sampler.pairs(live.state, light_choice_dimension(live.depth))
-    u = np.empty((2, len(live)))
-    u[:, rows] = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))
-    return u
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
@@ -587,20 +522,16 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
         live.eta_scale[through] *= eta * eta
 
 
-def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: int, shared=None) -> np.ndarray:
+def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
     """Stage 8: paths that have traced at least ``start_depth`` segments go on
     with probability ``q = min(max(throughput) * eta^2, 0.95)`` and divide
-    their throughput by ``q``; the others end.  Returns ``absorbed``.
-    ``shared``: :func:`shared_choice_pairs`'s, or None."""
+    their throughput by ``q``; the others end.  Returns ``absorbed``."""
     rows = np.flatnonzero(~absorbed & (live.depth + 1 >= start_depth))
     if rows.size == 0:
         return absorbed
     survival = np.minimum(gather(live.throughput, rows).max(axis=0) * live.eta_scale.take(rows),
                           ROULETTE_MAX_SURVIVAL)
-    if shared is None:
-        u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
-    else:
-        u = shared[1].take(rows)
+    u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
     survive = u < survival
     absorbed[rows] = ~survive  # every row was still alive: only the ended become True
     keep = np.flatnonzero(survive)
