@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from .render import POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute, tune_allocator
 from .sampling import scene_key
+from .validation import first_line
 
 CONNECT_TIMEOUT = "5s"  # an address that does not answer is reported within seconds
 # A local Dask worker is a process of its own: 63 MiB at rest, measured
@@ -60,8 +61,7 @@ def connect(scheduler: str, memory: int | None = None):
     try:
         return Client(scheduler, timeout=CONNECT_TIMEOUT)
     except Exception as e:  # noqa: BLE001 (Dask's comm layers raise many types: TypeError for tls:// without a context)
-        text = (str(e).splitlines() or [type(e).__name__])[0][:200]
-        raise SchedulerError(f"{scheduler}: cannot connect to the Dask scheduler ({text})") from None
+        raise SchedulerError(f"{scheduler}: cannot connect to the Dask scheduler ({first_line(e)})") from None
 
 
 _COMPILED: dict = {}

@@ -19,6 +19,7 @@ import tempfile
 import numpy as np
 
 from .units import Unit
+from .validation import first_line
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 # Bump when the unit plan or the film's meaning changes: a checkpoint made by
@@ -206,8 +207,7 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
     # compression method, RuntimeError for an encrypted member
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error,
             NotImplementedError, RuntimeError) as e:
-        text = (str(e).splitlines() or [type(e).__name__])[0][:200]
-        raise CheckpointError(f"{path}: not a wavefront checkpoint ({text})") from None
+        raise CheckpointError(f"{path}: not a wavefront checkpoint ({first_line(e)})") from None
     units_done = int(arrays["units_done"])
     if not 0 <= units_done <= units_total:
         raise CheckpointError(f"{path}: not a wavefront checkpoint (units_done {units_done} out of range)")

@@ -33,8 +33,8 @@ import numpy as np
 from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
 from .integrators import TRACERS
 from .memory import (  # noqa: F401 (MemoryBudgetError and the measures are part of this module's API)
-    LOAD_BYTES_PER_FILE_BYTE, MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak,
-    physical_memory, refuse_unless_fits, release_free_memory)
+    MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
+    release_free_memory)
 from .output import OutputError, check_output_path
 from .path import TraceStats
 from .sampling import scene_key

@@ -42,7 +42,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .validation import SceneError, color, describe, fail, integer, join, number, source_of, string
+from .validation import SceneError, color, describe, fail, first_line, integer, join, number, source_of, string
 
 RGB = tuple[float, float, float]
 
@@ -255,7 +255,7 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
             with _silenced_output(), OpenEXR.File(file, header_only=True) as exr:
                 (x0, y0), (x1, y1) = exr.header()["dataWindow"]
         except Exception as e:  # OpenEXR raises RuntimeError and others on a damaged header
-            fail(obj, "file", f"{file}: cannot read as OpenEXR ({_first_line(e)})")
+            fail(obj, "file", f"{file}: cannot read as OpenEXR ({first_line(e)})")
         width, height, images = int(x1 - x0 + 1), int(y1 - y0 + 1), 1
         kind = "exr"
     else:
@@ -264,7 +264,7 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         try:
             props = iio.improps(file)
         except Exception as e:  # imageio's plugins raise many kinds; any of them means "not an image we read"
-            fail(obj, "file", f"{file}: not an image imageio can read ({_first_line(e)})")
+            fail(obj, "file", f"{file}: not an image imageio can read ({first_line(e)})")
         shape, images = props.shape, props.n_images or 1
         if len(shape) > 3:  # a stack of frames (pillow gives even one GIF frame as one)
             shape = shape[1:]
@@ -337,7 +337,7 @@ def _decode_image(obj, file: str) -> np.ndarray:
             options["mode"] = "RGB"
         data = iio.imread(file, **options)
     except Exception as e:
-        fail(obj, "file", f"{file}: cannot decode ({_first_line(e)})")
+        fail(obj, "file", f"{file}: cannot decode ({first_line(e)})")
     return image_pixels(obj, data, path="file", size_checked=True)
 
 
@@ -366,11 +366,6 @@ def _silenced_output():
             os.close(fd)
 
 
-def _first_line(e: BaseException) -> str:
-    text = str(e).strip().splitlines()
-    return text[0][:200] if text else type(e).__name__
-
-
 def _read_exr(obj, file: str) -> np.ndarray:
     import OpenEXR
 
@@ -381,7 +376,7 @@ def _read_exr(obj, file: str) -> np.ndarray:
     except SceneError:
         raise
     except Exception as e:
-        fail(obj, "file", f"{file}: cannot read as OpenEXR ({_first_line(e)})")
+        fail(obj, "file", f"{file}: cannot read as OpenEXR ({first_line(e)})")
     names = {name.split(".")[-1]: name for name in channels}
     if {"R", "G", "B"} <= names.keys():
         data = np.stack([channels[names[c]] for c in "RGB"], axis=-1)

@@ -145,6 +145,13 @@ def vec3(obj, value, path: str, *, low=None, high=None) -> tuple[float, float, f
     return tuple(number(obj, v, f"{path}[{i}]", low=low, high=high) for i, v in enumerate(value))
 
 
+def first_line(e: BaseException) -> str:
+    """An exception's message as the end of one line of ours: its first line,
+    at most 200 characters, or its type's name when it says nothing."""
+    text = str(e).strip().splitlines()
+    return text[0][:200] if text else type(e).__name__
+
+
 # A colour (albedo, emission, background) above this overflows a render's
 # float32 arithmetic on its way to the film: an emitter of 1e300 rendered
 # black, its samples dropped as non-finite, after NumPy's overflow warnings.

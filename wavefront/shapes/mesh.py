@@ -19,7 +19,7 @@ import numpy as np
 
 from ..geometry import MAX_COORDINATE, material_field
 from ..transform import Transform, transform_field
-from ..validation import describe, fail
+from ..validation import describe, fail, first_line
 
 # A 1M-triangle binary PLY is ~20 MB and as OBJ ~60 MB; 512 MiB leaves room
 # for large models while refusing a 10 GB file before reading it.
@@ -246,7 +246,7 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
 def _reader_problem(e: Exception) -> str:
     """What trimesh's exception says, as the end of one line: a bare KeyError
     ("'uri'") or AttributeError from a glTF's JSON said nothing of the file."""
-    text = (str(e).splitlines() or [""])[0][:200]
+    text = first_line(e) if str(e).strip() else ""
     if isinstance(e, KeyError):
         return f"a required entry {text} is missing"
     if isinstance(e, (AttributeError, TypeError)):
