@@ -285,27 +285,35 @@ def test_sphere_any_hit_answers_as_the_nearest_root_below_t_max(seed, dtype, mov
 
 
 @settings(deadline=None, max_examples=60)
-@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.integers(1, 64),
-       st.booleans())
-def test_few_rays_pick_the_same_nearest_sphere(seed, dtype, n, limited):
-    """Below ``FEW_RAYS`` brute force picks each ray's winner with argmax:
-    the same hits, ``t`` and lowest index on a tie (duplicated spheres meet
-    a ray at the same ``t``), as the per-primitive writes of larger queries."""
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.integers(1, 300),
+       st.booleans(), st.sampled_from([1, 7, 64, 1 << 18]))
+def test_brute_force_picks_the_lowest_nearest_sphere(seed, dtype, n, limited, block_elements):
+    """Brute force's least-rank pick of each ray's nearest sphere is
+    ``argmin`` over every sphere's exact ``t``: the same hits, ``t`` and
+    lowest index on a tie (duplicated spheres meet a ray at the same ``t``),
+    whether the spheres come in one block or several (a tie across blocks
+    goes to the earlier), in blocks of more than 128 (the wider ranks) or
+    fewer."""
     rng = np.random.default_rng(seed)
-    m = int(rng.integers(1, 10))
+    m = int(rng.choice([rng.integers(1, 10), rng.integers(100, 200)]))
     center, radius = rng.uniform(-3, 3, (3, m)), rng.uniform(0.2, 2.0, m)
     twin = rng.integers(0, m, m)  # every sphere again, some twice: ties
     center, radius = np.concatenate((center, center[:, twin]), axis=1), np.concatenate((radius, radius[twin]))
-    prims = Primitives([SphereSet(center, radius, np.zeros(radius.size, np.int32), dtype)], dtype)
+    spheres = SphereSet(center, radius, np.zeros(radius.size, np.int32), dtype)
+    prims = Primitives([spheres], dtype)
     origin = rng.uniform(-5, 5, (3, n)).astype(dtype)
     direction = normalize(rng.normal(size=(3, n))).astype(dtype)
     t_max = rng.uniform(0.5, 8.0, n).astype(dtype) if limited else np.inf
-    few = prims.intersect(origin, direction, t_max)
-    saved, primitives_module.FEW_RAYS = primitives_module.FEW_RAYS, 0
+    saved, primitives_module.BLOCK_ELEMENTS = primitives_module.BLOCK_ELEMENTS, block_elements
     try:
-        many = prims.intersect(origin, direction, t_max)
+        hits = prims.intersect(origin, direction, t_max)
     finally:
-        primitives_module.FEW_RAYS = saved
-    np.testing.assert_array_equal(few.t, many.t)
-    np.testing.assert_array_equal(few.primitive_idx, many.primitive_idx)
-    assert few.primitive_idx.dtype == np.int32
+        primitives_module.BLOCK_ELEMENTS = saved
+    t = spheres.t_block(0, len(spheres), origin, direction)
+    t = np.where(np.isnan(t), np.inf, t)  # a miss may be NaN
+    nearest = t.argmin(axis=0)  # the first (lowest) index at the minimum
+    t_nearest = t.min(axis=0)
+    hit = t_nearest < t_max
+    np.testing.assert_array_equal(hits.primitive_idx, np.where(hit, nearest, -1))
+    np.testing.assert_array_equal(hits.t, np.where(hit, t_nearest, np.inf).astype(dtype))
+    assert hits.primitive_idx.dtype == np.int32
