@@ -324,7 +324,13 @@ def anchored_roots(center, radius_squared, near_point, far_point, origin, direct
         term = origin[i] - near_point[i]
         term *= origin[i] - far_point[i]
         power += term
-    big = np.copysign(sqrt_disc, h)
+    # copysign(sqrt_disc, h) by bits, h's sign onto sqrt_disc (>= 0, or a
+    # miss's NaN, which stays NaN): two integer passes took 7.7 us of an
+    # 8 x 4096 float32 block where np.copysign, a scalar loop, took 16
+    bits = np.dtype(f"u{h.dtype.itemsize}")
+    big = np.bitwise_and(h.view(bits), np.array(-0.0, h.dtype).view(bits))
+    big |= sqrt_disc.view(bits)
+    big = big.view(h.dtype)
     big += h
     with np.errstate(divide="ignore", invalid="ignore"):
         power /= big  # now the small root
