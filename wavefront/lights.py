@@ -393,15 +393,17 @@ def _cone(center, radius, reference):
 
 
 def _frame(z):
-    """Two unit vectors completing unit ``z (3, N)`` to an orthonormal basis
-    (Duff et al. 2017, "Building an Orthonormal Basis, Revisited": branch-free),
-    as tuples of rows (the caller combines them row by row, with no stacking)."""
+    """Two unit vectors ``x, y`` completing unit ``z (3, N)`` to an
+    orthonormal basis (Duff et al. 2017, "Building an Orthonormal Basis,
+    Revisited": branch-free), yielded row by row as ``(x[i], y[i])``: the
+    caller combines each row before the next is made, so at most two rows
+    are held (the basis whole was 5 of sample_sphere's ~30 (N,) arrays)."""
     sign = np.copysign(1.0, z[2])
     a = -1.0 / (sign + z[2])
     b = z[0] * z[1] * a
-    x = (1.0 + sign * z[0] * z[0] * a, sign * b, -sign * z[0])
-    y = (b, sign + z[1] * z[1] * a, -z[1])
-    return x, y
+    yield 1.0 + sign * z[0] * z[0] * a, b
+    yield sign * b, sign + z[1] * z[1] * a
+    yield -sign * z[0], -z[1]
 
 
 def sample_sphere(center, radius, reference, u):
@@ -430,24 +432,30 @@ def sample_sphere(center, radius, reference, u):
         sin2_small = sin2_max.take(small) * u[0].take(small)
         cos_theta[small] = np.sqrt(np.maximum(0.0, 1.0 - sin2_small))
         sin2_theta[small] = sin2_small
+    # From here each step writes into an array that is not read again (the
+    # same operations, in place) and drops what it no longer needs: a light
+    # sample of 29 Ki paths peaked at 13 MiB in this function, the most of any
+    # stage, and a fresh worker faults in every page of its peak
     with np.errstate(divide="ignore", invalid="ignore"):
         cos_alpha = sin2_theta / sin2_max
         np.subtract(1.0, cos_alpha, out=cos_alpha)
         np.maximum(cos_alpha, 0.0, out=cos_alpha)
         np.sqrt(cos_alpha, out=cos_alpha)
         cos_alpha *= cos_theta
-        cos_alpha += sin2_theta / np.sqrt(sin2_max)
+        sin2_theta /= np.sqrt(sin2_max, out=cos_theta)  # cos_theta's last use was the line above
+        cos_alpha += sin2_theta
+    del cos_theta, sin2_theta
     sin_alpha = cos_alpha * cos_alpha
     np.subtract(1.0, sin_alpha, out=sin_alpha)
     np.maximum(sin_alpha, 0.0, out=sin_alpha)
     np.sqrt(sin_alpha, out=sin_alpha)
     cos_phi, sin_phi = cos_sin_2pi(u[1])  # two float64 libm calls per sample cost ~15 % of a lamp's sample
-    x, y = _frame(axis)
+    along_x, along_y = np.multiply(sin_alpha, cos_phi, out=cos_phi), np.multiply(sin_alpha, sin_phi, out=sin_phi)
+    del sin_alpha
     # the outward normal at the sampled point faces the reference point: -w in
     # the cone's frame, built row by row into one array (no (3, N) temporaries)
-    along_x, along_y = sin_alpha * cos_phi, sin_alpha * sin_phi
     normal = np.empty(axis.shape)
-    for row, (xi, yi, zi) in enumerate(zip(x, y, axis)):
+    for row, ((xi, yi), zi) in enumerate(zip(_frame(axis), axis)):
         out = normal[row]
         np.multiply(along_x, xi, out=out)
         out += along_y * yi
