@@ -43,7 +43,7 @@ from .sampling import cos_sin_2pi, random_unit_vector
 from .shapes import Primitives, QuadSet, SphereSet, TriangleSet
 from .shapes.sphere import object_normal, sphere_uv
 from .textures import TextureTable
-from .vecmath import dot, gather
+from .vecmath import dot, gather, length
 
 SPHERE, QUAD, TRIANGLE = 0, 1, 2  # emitter kinds
 # Below sin^2(1.5 degrees) the cone's 1 - cos(theta_max) cancels in floating
@@ -234,7 +234,7 @@ class EmitterTable:
                                          None if time is None else time.take(sel))
                     point[:, sel], normal[:, sel], pdf[sel] = p, nrm, pd
         direction = point - ref
-        distance = np.sqrt(dot(direction, direction))
+        distance = length(direction)
         direction /= np.maximum(distance, _TINY)
         front = dot(normal, direction) < 0.0  # the light faces the reference point
         single = len(self) == 1  # its one column broadcasts: no gathers per sample
@@ -377,7 +377,7 @@ def _cone(center, radius, reference):
     """Axis (unit, reference -> centre), distance, sin^2 and 1 - cos of the
     cone's half-angle, and the rows of small cones (None: there are none)."""
     axis = center - reference
-    distance = np.sqrt(dot(axis, axis))
+    distance = length(axis)
     clamped = np.maximum(distance, _TINY)
     axis /= clamped
     sin2_max = radius / clamped

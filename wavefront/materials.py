@@ -285,8 +285,10 @@ def lambertian_pdf(normal, direction):
     ``direction``: ``max(cos theta, 0) / pi`` about the same ``normal`` (both
     ``(3, N)`` unit); shape ``(N,)``, float64.  Light sampling's MIS weights
     need it; metal and glass have none (they are deltas)."""
-    cos = dot(normal, direction).astype(np.float64, copy=False)
-    return np.maximum(cos, 0.0) / np.pi
+    cos = dot(normal, direction).astype(np.float64, copy=False)  # a new array either way
+    np.maximum(cos, 0.0, out=cos)
+    cos /= np.pi
+    return cos
 
 
 def lambertian_eval(albedo, normal, direction):

@@ -361,7 +361,8 @@ def mis_weight(pdf_a, pdf_b):
     sample drawn with density ``pdf_a`` when ``pdf_b`` could also have drawn it."""
     a2 = pdf_a * pdf_a
     with np.errstate(invalid="ignore", divide="ignore"):
-        w = a2 / (a2 + pdf_b * pdf_b)
+        w = a2 + pdf_b * pdf_b
+        np.divide(a2, w, out=w)
     positive = a2 > 0
     return w if positive.all() else np.where(positive, w, 0.0)  # a light sample's pdf is positive: no where
 
@@ -424,7 +425,12 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
         radiance = emitters.radiance[:, :1]
     else:
         radiance = gather(light.radiance, ok)
-    contribution = gather(live.throughput, rows) * f_cos * radiance * (mis_weight(pdf, p_material) / pdf)
+    # the product in place, left to right as written: throughput f_cos radiance (w_light / p_light)
+    contribution = gather(live.throughput, rows) * f_cos
+    contribution *= radiance
+    weight = mis_weight(pdf, p_material)
+    weight /= pdf
+    contribution *= weight
     return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
                        contribution=contribution, slot=live.slot.take(rows),

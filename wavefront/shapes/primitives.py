@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import BLOCK_ELEMENTS, escaped_at_inf
+from ..vecmath import dot
 from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_extent
 
 # Rays tested together by brute force.  Each of the exact tests' ~40
@@ -373,8 +374,7 @@ class Primitives:
                 point[:, sel], outward[:, sel], shading[:, sel] = p, g, s
                 if uv:
                     coords[:, sel] = c
-        cos = direction[0] * outward[0] + direction[1] * outward[1] + direction[2] * outward[2]
-        front_face = cos < 0.0
+        front_face = dot(direction, outward) < 0.0
         sign = 2 * front_face.astype(outward.dtype) - 1  # flip to face the ray; cheaper than a (3, N) where
         geometric = outward * sign
         normal = geometric if shading is outward else shading * sign

@@ -204,8 +204,10 @@ class SphereSet(ShapeKind):
         return nearest_root(*sphere_roots(center, radius_squared, origin, direction))
 
     def surface(self, idx, origin, direction, t, uv: bool, time=None):
-        point = origin + t * direction
-        outward = (point - self.center_at(idx, time)) * self.inverse_radius.take(idx)
+        point = t * direction
+        point += origin  # origin + t direction (addition commutes exactly)
+        outward = point - self.center_at(idx, time)
+        outward *= self.inverse_radius.take(idx)
         return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
 
 
