@@ -22,8 +22,14 @@ from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_ex
 # operations makes a (primitives, rays) temporary: with a few thousand rays
 # they stay in L2 instead of streaming through memory.  Whole Cornell box
 # renders (128x128, 64 spp, one core, interleaved in one process): 4.41 s with
-# the whole wavefront at once, 4.17 s at 4096, 4.44 s at 2048.
-BRUTE_FORCE_RAYS = 4096
+# the whole wavefront at once, 4.17 s at 4096, 4.44 s at 2048.  Re-measured
+# since the allocator keeps freed temporaries (render.tune_allocator), per
+# 32 Ki path render (128x64 or 128x128 2 spp, one core, medians of 5-7, CPU
+# ms at 4096 / 8192 / 12288 / 16384 rays): cornell_spheres 64 / 63 / 63 / 65
+# (its nearest-hit query 2.09 -> 1.73 ms a bounce from 4096 to 8192, the
+# shadow rays' 1.13 -> 0.89), the Cornell box 70 / 67 / 67 / 69, three_spheres
+# (400x225, 1 spp) 53 / 51 / 52 / 53.
+BRUTE_FORCE_RAYS = 8192
 
 # The float32 slab pre-filter of flat primitives (see SlabFilter) grows each
 # primitive's padded box by this much of the scene's extent E: far more than
