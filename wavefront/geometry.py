@@ -342,12 +342,13 @@ def anchored_roots(center, radius_squared, near_point, far_point, origin, direct
 
 def first_root(a, b, t_min):
     """The smaller of roots ``a`` and ``b`` (either order) past ``t_min``;
-    ``inf`` or NaN where neither is (as :func:`nearest_root`, whose arithmetic it shares)."""
+    ``inf`` or NaN where neither is (as :func:`nearest_root`, whose arithmetic
+    it shares).  Overwrites ``a`` and ``b`` (no temporaries)."""
     a_valid, b_valid = a > t_min, b > t_min
     with np.errstate(divide="ignore", invalid="ignore"):
-        a = np.abs(a)
+        np.abs(a, out=a)
         a /= a_valid
-        b = np.abs(b)
+        np.abs(b, out=b)
         b /= b_valid
     return np.fmin(a, b, out=a)
 

@@ -195,7 +195,9 @@ class SphereSet(ShapeKind):
         else:
             h, sqrt_disc = sphere_roots(*fields, o, d)
             a, b, t_min = h - sqrt_disc, h + sqrt_disc, T_MIN
-        return root_within(a, t_min, t_max) | root_within(b, t_min, t_max)
+        blocked = root_within(a, t_min, t_max)
+        blocked |= root_within(b, t_min, t_max)
+        return blocked
 
     @staticmethod
     def exact_t(center, radius_squared, origin, direction):
