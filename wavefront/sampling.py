@@ -359,8 +359,9 @@ def owen_scramble_premixed(v: np.ndarray, seed: np.ndarray, multiplier: np.ndarr
 def _owen_mix(v: np.ndarray, multiplier: np.ndarray) -> np.ndarray:
     """The scrambler after its add: the odd multiplier, then the two fixed mixes; in place."""
     v *= multiplier
-    v ^= v * _OWEN_MIX[0]
-    v ^= v * _OWEN_MIX[1]
+    product = np.multiply(v, _OWEN_MIX[0])
+    v ^= product
+    v ^= np.multiply(v, _OWEN_MIX[1], out=product)
     return v
 
 
