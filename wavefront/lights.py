@@ -374,11 +374,13 @@ def sample_triangle(v0, e1, e2, u, area=None):
 
 
 def _cone(center, radius, reference):
-    """Axis (unit, reference -> centre), distance, sin^2 and 1 - cos of the
-    cone's half-angle, and the rows of small cones (None: there are none)."""
+    """Axis (unit, reference -> centre), the rows whose reference lies inside
+    the sphere, sin^2 and 1 - cos of the cone's half-angle, and the rows of
+    small cones (None: there are none)."""
     axis = center - reference
     distance = length(axis)
-    clamped = np.maximum(distance, _TINY)
+    inside = np.flatnonzero(distance <= radius)
+    clamped = np.maximum(distance, _TINY, out=distance)  # the distance's last use
     axis /= clamped
     sin2_max = radius / clamped
     sin2_max *= sin2_max
@@ -389,7 +391,7 @@ def _cone(center, radius, reference):
         one_minus_cos_max[small] = 0.5 * sin2_max.take(small)
     else:
         small = None
-    return axis, distance, sin2_max, one_minus_cos_max, small
+    return axis, inside, sin2_max, one_minus_cos_max, small
 
 
 def _frame(z):
@@ -423,7 +425,7 @@ def sample_sphere(center, radius, reference, u):
         ``normal`` is the outward normal at ``point``.
     pdf : ndarray of shape (N,), per unit solid angle
     """
-    axis, distance, sin2_max, one_minus_cos_max, small = _cone(center, radius, reference)
+    axis, inside, sin2_max, one_minus_cos_max, small = _cone(center, radius, reference)
     cos_theta = 1.0 - one_minus_cos_max * u[0]
     sin2_theta = 1.0 - cos_theta * cos_theta
     if small is not None:
@@ -462,7 +464,6 @@ def sample_sphere(center, radius, reference, u):
         out += cos_alpha * zi
     np.negative(normal, out=normal)
     pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
-    inside = np.flatnonzero(distance <= radius)
     if inside.size:
         outward = random_unit_vector(u[0].take(inside), u[1].take(inside))
         normal[:, inside] = outward
@@ -470,7 +471,7 @@ def sample_sphere(center, radius, reference, u):
     point = radius * normal
     point += center
     if inside.size:
-        r = np.broadcast_to(radius, distance.shape).take(inside)
+        r = np.broadcast_to(radius, pdf.shape).take(inside)
         pdf[inside] = area_to_solid_angle(1.0 / (4.0 * np.pi * r * r), gather(reference, inside),
                                           gather(point, inside), gather(normal, inside))
     return point, normal, pdf
@@ -480,9 +481,8 @@ def sphere_pdf(center, radius, reference, point):
     """The solid-angle pdf of :func:`sample_sphere` for the direction from
     ``reference`` to ``point`` on the sphere (a point of the visible cap when
     the reference is outside)."""
-    _, distance, _, one_minus_cos_max, _ = _cone(center, radius, reference)
+    _, inside, _, one_minus_cos_max, _ = _cone(center, radius, reference)
     pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
-    inside = np.flatnonzero(distance <= radius)
     if inside.size:
         c, r = gather(center, inside), radius.take(inside)
         p = gather(point, inside)

@@ -406,12 +406,9 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     ``throughput * albedo / pi * cos * radiance * w_light / p_light``.
     """
     rows = np.flatnonzero(diffuse & ~absorbed & (live.depth + 1 < max_depth))
-    state, depth = live.state.take(rows), live.depth.take(rows)
-    u_point = sampler.pairs(state, light_point_dimension(depth))
-    u_choice = light_choice(sampler, emitters, state, depth)
-    point = gather(surface.point, rows)
+    u_point, u_choice = light_uniforms(sampler, emitters, live, rows)
     time = None if live.time is None else live.time.take(rows)
-    light = emitters.sample(point, u_choice, u_point, time)
+    light = emitters.sample(gather(surface.point, rows), u_choice, u_point, time)
     normal = gather(surface.normal, rows)
     p_material = lambertian_pdf(normal, light.direction)
     carries = light.carries if light.carries is not None else light.radiance.max(axis=0) > 0.0
@@ -431,20 +428,25 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     weight = mis_weight(pdf, p_material)
     weight /= pdf
     contribution *= weight
-    return ShadowBatch(origin=gather(point, ok), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
+    return ShadowBatch(origin=gather(surface.point, rows), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
                        t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
                        contribution=contribution, slot=live.slot.take(rows),
                        time=None if time is None else time.take(ok),
                        media_mask=None if live.media_mask is None else live.media_mask.take(rows))
 
 
-def light_choice(sampler: Sampler, emitters, state, depth):
-    """The uniforms choosing each light sample's emitter, or None with one
+def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows):
+    """The uniforms of the light samples of paths ``rows``: the point on the
+    emitter ``(2, R)``, and those choosing the emitter, or None with one
     emitter (nothing to choose: not drawing the pair changes no other number,
-    as a pinhole camera's lens pair)."""
+    as a pinhole camera's lens pair).  The rows' states are gathered here and
+    dropped on return: light sampling holds the most memory of any stage,
+    and a fresh worker faults in every page of its peak."""
+    state, depth = live.state.take(rows), live.depth.take(rows)
+    u_point = sampler.pairs(state, light_point_dimension(depth))
     if len(emitters) == 1:
-        return None
-    return sampler.pairs(state, light_choice_dimension(depth))[0]
+        return u_point, None
+    return u_point, sampler.pairs(state, light_choice_dimension(depth))[0]
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
@@ -799,9 +801,7 @@ def sample_lights_in_media(cs: CompiledScene, sampler: Sampler, emitters, live: 
     is ``throughput * albedo / (4 pi) * radiance * w_light / p_light`` (the
     transmittance comes with the shadow ray)."""
     rows = np.flatnonzero(~absorbed & (live.depth + 1 < max_depth))
-    state, depth = live.state.take(rows), live.depth.take(rows)
-    u_point = sampler.pairs(state, light_point_dimension(depth))
-    u_choice = light_choice(sampler, emitters, state, depth)
+    u_point, u_choice = light_uniforms(sampler, emitters, live, rows)
     origin = gather(point, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(origin, u_choice, u_point, time)
