@@ -203,10 +203,9 @@ class _Signals:
 
     def __call__(self, signum, frame):
         if os.getpid() != self.pid:
-            # A pool worker forked before its initializer reset the handlers
-            # (one the pool starts in place of a dead one, terminated at once):
-            # SIGTERM must end it, or Pool.terminate() waits for it for ever;
-            # an interrupt is the parent's to handle.
+            # A worker forked before its initializer reset the handlers: a
+            # SIGTERM (say, to the whole process group) must end it; an
+            # interrupt is the parent's to handle.
             if signum == signal.SIGTERM:
                 signal.signal(signum, signal.SIG_DFL)
                 os.kill(os.getpid(), signum)
@@ -394,7 +393,8 @@ def check_not_reading(scene, writes: list[str]) -> None:
 def _render(args, signals: _Signals, started: float) -> int:
     from .film import CheckpointError
     from .output import OutputError, encode_bytes
-    from .render import DEFAULT_MEMORY, MemoryBudgetError, RenderError, compile_within, phase_peak, render_scene
+    from .render import (DEFAULT_MEMORY, MemoryBudgetError, RenderError, compile_within, end_pools, phase_peak,
+                         render_scene)
     from .scene import turntable
     from .scenefile import SceneError, load_scene
 
@@ -492,6 +492,7 @@ def _render(args, signals: _Signals, started: float) -> int:
                 return 128 + signals.stop  # the shell's convention for "ended by this signal"
         return 0
     finally:
+        end_pools()  # a finished render's workers end while its image is written; not after the command
         if bar is not None:
             bar.close()
         if client is not None:
