@@ -652,8 +652,8 @@ class _Workers:
             worker.conn.close()
             worker.process.join()
 
-    def end(self) -> None:
-        """Let every worker finish and exit (they are idle); kill any that does not."""
+    def release(self) -> None:
+        """Tell every worker (idle: the render has finished) to exit."""
         for worker in self.all:
             # None, not just closing the pipe: workers forked later hold
             # copies of this end, so the worker would never see it close
@@ -662,6 +662,9 @@ class _Workers:
             except OSError:
                 pass  # it died meanwhile
             worker.conn.close()
+
+    def join(self) -> None:
+        """Wait for every released worker to exit; kill any that does not in time."""
         deadline = time.monotonic() + ENDING_SECONDS
         for worker in self.all:
             worker.process.join(max(0.0, deadline - time.monotonic()))
@@ -740,26 +743,17 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     except BaseException:
         pool.kill()
         raise
-    _end_pool_later(pool)
+    # Released, not waited for: the workers exit (a few ms) while the caller
+    # goes on (the CLI writes the image); the next render's start, or the
+    # CLI's end, waits for them (end_pools), so pools never overlap.
+    pool.release()
+    _ENDING.append(pool)
 
 
-_ENDING: list[threading.Thread] = []  # pools whose render finished, being ended meanwhile
-
-
-def _end_pool_later(pool) -> None:
-    """End a pool whose render finished while the caller goes on.
-
-    Ending it (closing the pipes, then waiting for every worker to exit)
-    takes a few ms in which the caller would wait and both cores idle; the
-    CLI encodes and writes the image meanwhile.  The next render's
-    pool waits for it (:func:`end_pools`), so no two pools ever overlap.
-    """
-    ender = threading.Thread(target=pool.end, daemon=True, name="wavefront: ending a finished render's workers")
-    ender.start()
-    _ENDING.append(ender)
+_ENDING: list[_Workers] = []  # workers of finished renders, told to exit but not yet waited for
 
 
 def end_pools() -> None:
-    """Wait until every pool of a finished render has ended (see :func:`_end_pool_later`)."""
+    """Wait until the workers of every finished render have exited."""
     while _ENDING:
         _ENDING.pop().join()
