@@ -309,8 +309,37 @@ def test_a_task_error_in_a_worker_is_raised_in_the_parent(monkeypatch):
     monkeypatch.setattr(render_module, "run_task", failing)
     scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=64,
                                                                               samples_per_pixel=8)
-    with pytest.raises(ValueError, match="units failed"):
+    with pytest.raises(ValueError, match="units failed") as raised:
         render_module.render_scene(scene, workers=2, chunk_size=512)
+    # where it failed, in the worker: its traceback is the error's cause
+    assert isinstance(raised.value.__cause__, render_module.WorkerTraceback)
+    assert "in failing" in str(raised.value.__cause__)
+
+
+def test_a_process_forked_after_a_render_renders_on_workers_of_its_own(tmp_path):
+    """Nothing of the parent's finished render (its worker processes) is left
+    for a forked child to wait for: the child's own pooled render works."""
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("forks")
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=48, height=32, samples_per_pixel=4)
+    expected = render_scene(scene, workers=2, chunk_size=256).image
+    pid = os.fork()
+    if pid == 0:  # the child: render on its own workers, report by exit status
+        try:
+            same = np.array_equal(render_scene(scene, workers=2, chunk_size=256).image, expected)
+        except BaseException:
+            os._exit(2)
+        os._exit(0 if same else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
+
+
+def test_no_worker_process_outlives_a_render():
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=48, height=32, samples_per_pixel=4)
+    render_scene(scene, workers=3, chunk_size=256)
+    assert not __import__("multiprocessing").active_children()
+    if os.path.isdir("/proc"):
+        assert not children_of(os.getpid())  # not even a zombie
 
 
 def test_sigterm_ends_a_forked_child_that_still_has_the_commands_handler():

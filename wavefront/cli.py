@@ -393,8 +393,7 @@ def check_not_reading(scene, writes: list[str]) -> None:
 def _render(args, signals: _Signals, started: float) -> int:
     from .film import CheckpointError
     from .output import OutputError, encode_bytes
-    from .render import (DEFAULT_MEMORY, MemoryBudgetError, RenderError, compile_within, end_pools, phase_peak,
-                         render_scene)
+    from .render import DEFAULT_MEMORY, MemoryBudgetError, RenderError, compile_within, phase_peak, render_scene
     from .scene import turntable
     from .scenefile import SceneError, load_scene
 
@@ -492,7 +491,6 @@ def _render(args, signals: _Signals, started: float) -> int:
                 return 128 + signals.stop  # the shell's convention for "ended by this signal"
         return 0
     finally:
-        end_pools()  # a finished render's workers end while its image is written; not after the command
         if bar is not None:
             bar.close()
         if client is not None:

@@ -330,9 +330,9 @@ def _die_with_parent(parent: int) -> None:
 def _init_worker(scene: Scene, capacity: int, parent: int, compiled: CompiledScene | None = None,
                  key=None) -> None:
     _die_with_parent(parent)
-    # The parent decides what an interrupt means; workers just get
-    # terminated.  A forked worker inherits the parent's Python handlers, and
-    # one that caught SIGTERM would make Pool.terminate() wait forever.
+    # The parent decides what an interrupt means; workers just get killed.
+    # A forked worker inherits the parent's Python handlers: a SIGTERM (say,
+    # to the whole process group) must end it, not set the parent's flag.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     tune_allocator()
@@ -581,25 +581,28 @@ def _run_inline(cs, capacity, tasks, merge, stopped) -> None:
 def _serve(conn, scene, capacity, parent, compiled, key) -> None:
     """A worker process: run each task the parent sends, send back its result.
 
-    An error is sent back too, and raised in the parent.  The parent closing
-    its end of the pipe (or sending None) ends the worker.
+    An error is sent back too, with its traceback, and raised in the parent.
+    None from the parent ends the worker.
     """
     _init_worker(scene, capacity, parent, compiled, key)
-    while True:
-        try:
-            task = conn.recv()
-        except EOFError:
-            return
-        if task is None:
-            return
+    while (task := conn.recv()) is not None:
         try:
             reply = (True, run_task(task))
         except Exception as e:  # noqa: BLE001 (any error of the task is the parent's to report)
-            reply = (False, e)
+            import traceback
+
+            reply = (False, (e, traceback.format_exc()))
         try:
             conn.send(reply)
         except Exception as e:  # noqa: BLE001 (an error that does not pickle)
-            conn.send((False, RuntimeError(f"{type(e).__name__}: {first_line(e)}")))
+            conn.send((False, (RuntimeError(f"{type(e).__name__}: {first_line(e)}"), reply[1][1])))
+
+
+class WorkerTraceback(Exception):
+    """Where a task failed in its worker process: the ``__cause__`` of the error re-raised in the parent."""
+
+    def __str__(self) -> str:
+        return f"in the worker process:\n{self.args[0]}"
 
 
 @dataclass
@@ -622,8 +625,13 @@ class _Workers:
     """
 
     def __init__(self, ctx, count: int, initargs: tuple):
-        self.ctx, self.initargs, self.exit_codes = ctx, initargs, []
-        self.all = [self._start() for _ in range(count)]
+        self.ctx, self.initargs, self.exit_codes, self.all = ctx, initargs, [], []
+        try:
+            for _ in range(count):
+                self.all.append(self._start())
+        except BaseException:  # a fork that failed, an interrupt: no worker is left behind
+            self.kill()
+            raise
 
     def _start(self) -> _WorkerProcess:
         ours, theirs = self.ctx.Pipe()
@@ -633,8 +641,8 @@ class _Workers:
         theirs.close()
         return _WorkerProcess(process, ours)
 
-    def replace(self, worker: _WorkerProcess) -> None:
-        """Note a dead worker's exit and start another in its place."""
+    def bury(self, worker: _WorkerProcess, replace: bool) -> None:
+        """Note a dead worker's exit; start another in its place if there is work left."""
         worker.conn.close()
         worker.process.join()
         self.exit_codes.append(worker.process.exitcode)
@@ -642,7 +650,11 @@ class _Workers:
             causes = ", ".join(sorted({_exit_cause(code) for code in self.exit_codes}))
             raise RenderError(f"{len(self.exit_codes)} worker processes died ({causes}); "
                               "if the system ran out of memory, lower --memory or --workers")
-        self.all[self.all.index(worker)] = self._start()
+        i = self.all.index(worker)
+        if replace:
+            self.all[i] = self._start()
+        else:
+            del self.all[i]
 
     def kill(self) -> None:
         """End every worker now, whatever it is doing."""
@@ -652,8 +664,8 @@ class _Workers:
             worker.conn.close()
             worker.process.join()
 
-    def release(self) -> None:
-        """Tell every worker (idle: the render has finished) to exit."""
+    def end(self) -> None:
+        """End every worker (all idle: the render has finished), all at once."""
         for worker in self.all:
             # None, not just closing the pipe: workers forked later hold
             # copies of this end, so the worker would never see it close
@@ -662,9 +674,6 @@ class _Workers:
             except OSError:
                 pass  # it died meanwhile
             worker.conn.close()
-
-    def join(self) -> None:
-        """Wait for every released worker to exit; kill any that does not in time."""
         deadline = time.monotonic() + ENDING_SECONDS
         for worker in self.all:
             worker.process.join(max(0.0, deadline - time.monotonic()))
@@ -683,7 +692,6 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     # doing both in each of them (first imports of the BVH and of
     # numpy.random included) held back the first tasks by ~40 ms, 8 % of W2.
     compiled, key = (cs, scene_key(scene.render.seed)) if fork else (None, None)
-    end_pools()  # the previous render's workers are gone before this one's start
     pool = _Workers(ctx, workers, (scene, capacity, os.getpid(), compiled, key))
     try:
         # Tasks are numbered and merged strictly in that order; at most a
@@ -694,15 +702,19 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
         window = TASKS_IN_FLIGHT * workers
         lost = []  # (number, task) of dead workers, run again first (lowest first): a result
         task_of, finished, merged, issued = {}, {}, 0, 0  # depends on its task alone, so the image is unchanged
+        planned = False  # every task of the plan has been given out
 
         def give(worker: _WorkerProcess) -> None:
-            nonlocal issued
+            nonlocal issued, planned
             if lost:
                 number, task = lost.pop(0)
-            elif issued - merged < window and (item := next(plan, None)) is not None:
-                (number, task), issued = item, issued + 1
-            else:
+            elif planned or issued - merged >= window:
                 return
+            elif (item := next(plan, None)) is None:
+                planned = True
+                return
+            else:
+                (number, task), issued = item, issued + 1
             task_of[number], worker.task = task, number
             try:
                 worker.conn.send(task)
@@ -726,7 +738,8 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
                     except (EOFError, OSError):  # it died sending: its sentinel says so
                         ok, value = None, None
                     if ok is False:
-                        raise value  # the task's own error
+                        error, where = value
+                        raise error from WorkerTraceback(where)  # the task's own error
                     if ok:
                         finished[worker.task] = value
                         del task_of[worker.task]
@@ -736,24 +749,11 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
                     if worker.task is not None:
                         lost.append((worker.task, task_of[worker.task]))
                         lost.sort(key=lambda item: item[0])
-                    pool.replace(worker)
+                    pool.bury(worker, replace=bool(lost) or not planned)
             while merged in finished:
                 merge(finished.pop(merged))
                 merged += 1
     except BaseException:
         pool.kill()
         raise
-    # Released, not waited for: the workers exit (a few ms) while the caller
-    # goes on (the CLI writes the image); the next render's start, or the
-    # CLI's end, waits for them (end_pools), so pools never overlap.
-    pool.release()
-    _ENDING.append(pool)
-
-
-_ENDING: list[_Workers] = []  # workers of finished renders, told to exit but not yet waited for
-
-
-def end_pools() -> None:
-    """Wait until the workers of every finished render have exited."""
-    while _ENDING:
-        _ENDING.pop().join()
+    pool.end()
