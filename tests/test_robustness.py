@@ -1,5 +1,6 @@
 """Interrupted, killed and resumed renders; limits; numerical edge cases."""
 
+import importlib
 import os
 import signal
 import subprocess
@@ -9,7 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from wavefront import Camera, Dielectric, Emissive, Lambertian, Metal, Scene, Solid, Sphere, render, render_scene
+from wavefront import (Camera, Dielectric, Emissive, Lambertian, Metal, Scene, Solid, Sphere, load_scene, render,
+                       render_scene)
 from wavefront.output import read_png_metadata
 
 from .test_cli import run
@@ -283,32 +285,66 @@ def test_a_signal_before_any_sample_is_finished_writes_nothing(tmp_path, monkeyp
 
 
 
-def test_a_pool_whose_dead_worker_held_the_task_queue_lock_still_ends():
-    """An idle pool worker waits for a task holding the task queue's read
-    lock; killed then, it dies holding it, and ``Pool.terminate()`` takes that
-    lock: replacing the pool must not wait for it for ever (checked by hand:
-    a plain ``terminate()`` here hangs)."""
-    import multiprocessing
-    import threading
+def test_workers_that_keep_dying_end_the_render_with_one_message(monkeypatch):
+    """Each task kills its worker: after MAX_WORKER_DEATHS replacements the
+    render gives up with a RenderError naming the cause, instead of looping."""
+    render_module = importlib.import_module("wavefront.render")  # the module (wavefront.render is the function)
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("the patched task reaches the workers by fork")
+    monkeypatch.setattr(render_module, "run_task", lambda task: os._exit(3))
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=64,
+                                                                              samples_per_pixel=8)
+    with pytest.raises(render_module.RenderError, match=r"worker processes died \(exit status 3\)"):
+        render_module.render_scene(scene, workers=2, chunk_size=512)
 
-    from wavefront.render import _end_broken_pool
 
-    ctx = multiprocessing.get_context("fork")
-    pool = ctx.Pool(1)
-    assert pool.apply_async(os.getpid).get(10)  # the worker is up, now idle in the queue's read
-    time.sleep(0.2)
-    worker = pool._pool[0]
-    worker.kill()
-    worker.join(10)
-    ended = threading.Event()
-    threading.Thread(target=lambda: (_end_broken_pool(pool, ctx), ended.set()), daemon=True).start()
-    assert ended.wait(30)
+def test_a_task_error_in_a_worker_is_raised_in_the_parent(monkeypatch):
+    render_module = importlib.import_module("wavefront.render")  # the module (wavefront.render is the function)
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("the patched task reaches the workers by fork")
+
+    def failing(task):
+        raise ValueError(f"task of {len(task)} units failed")
+
+    monkeypatch.setattr(render_module, "run_task", failing)
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=64,
+                                                                              samples_per_pixel=8)
+    with pytest.raises(ValueError, match="units failed") as raised:
+        render_module.render_scene(scene, workers=2, chunk_size=512)
+    # where it failed, in the worker: its traceback is the error's cause
+    assert isinstance(raised.value.__cause__, render_module.WorkerTraceback)
+    assert "in failing" in str(raised.value.__cause__)
+
+
+def test_a_process_forked_after_a_render_renders_on_workers_of_its_own(tmp_path):
+    """Nothing of the parent's finished render (its worker processes) is left
+    for a forked child to wait for: the child's own pooled render works."""
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("forks")
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=48, height=32, samples_per_pixel=4)
+    expected = render_scene(scene, workers=2, chunk_size=256).image
+    pid = os.fork()
+    if pid == 0:  # the child: render on its own workers, report by exit status
+        try:
+            same = np.array_equal(render_scene(scene, workers=2, chunk_size=256).image, expected)
+        except BaseException:
+            os._exit(2)
+        os._exit(0 if same else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
+
+
+def test_no_worker_process_outlives_a_render():
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=48, height=32, samples_per_pixel=4)
+    render_scene(scene, workers=3, chunk_size=256)
+    assert not __import__("multiprocessing").active_children()
+    if os.path.isdir("/proc"):
+        assert not children_of(os.getpid())  # not even a zombie
 
 
 def test_sigterm_ends_a_forked_child_that_still_has_the_commands_handler():
-    """A pool worker forked before its initializer resets the signal handlers
-    (the pool's replacement for a dead one) runs the command's handler: a
-    SIGTERM must still end it, or ``Pool.terminate()`` joins it for ever."""
+    """A worker forked before its initializer resets the signal handlers
+    runs the command's handler: a SIGTERM must still end it."""
     from wavefront.cli import _Signals
 
     handler = _Signals()

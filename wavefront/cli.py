@@ -203,10 +203,9 @@ class _Signals:
 
     def __call__(self, signum, frame):
         if os.getpid() != self.pid:
-            # A pool worker forked before its initializer reset the handlers
-            # (one the pool starts in place of a dead one, terminated at once):
-            # SIGTERM must end it, or Pool.terminate() waits for it for ever;
-            # an interrupt is the parent's to handle.
+            # A worker forked before its initializer reset the handlers: a
+            # SIGTERM (say, to the whole process group) must end it; an
+            # interrupt is the parent's to handle.
             if signum == signal.SIGTERM:
                 signal.signal(signum, signal.SIG_DFL)
                 os.kill(os.getpid(), signum)

@@ -38,8 +38,9 @@ class Film:
         # uint32: 4 bytes a pixel instead of 8 (a 4K film is 33 MB less)
         self.count = np.zeros(width * height, dtype=np.uint32) if count is None else count
 
-    def add(self, unit: Unit, total: np.ndarray, count: np.ndarray) -> None:
-        """Add a unit's per-pixel sums ``total (3, P)`` and ``count (P,)`` (its tile, row-major)."""
+    def add(self, unit: Unit, total: np.ndarray, count: np.ndarray | int) -> None:
+        """Add a unit's per-pixel sums ``total (3, P)`` and ``count (P,)``, or
+        one count for every pixel (its tile, row-major)."""
         # the tile is a rectangle of the image: sliced views, not a gather and
         # scatter through pixel indices (half the time, in the parent, which
         # merges while the workers render); the same additions.  Splitting
@@ -48,7 +49,8 @@ class Film:
         h, w = unit.y1 - unit.y0, unit.x1 - unit.x0
         tile = np.s_[unit.y0:unit.y1, unit.x0:unit.x1]
         self.sum.reshape(3, self.height, self.width)[(slice(None), *tile)] += total.reshape(3, h, w)
-        self.count.reshape(self.height, self.width)[tile] += count.astype(np.uint32).reshape(h, w)
+        counts = self.count.reshape(self.height, self.width)[tile]
+        counts += np.uint32(count) if isinstance(count, int) else count.astype(np.uint32).reshape(h, w)
 
     def rows(self, y0: int, y1: int) -> np.ndarray:
         """Mean of each pixel's samples for image rows ``y0:y1``, (rows, W, 3) float32; 0 where none."""

@@ -18,7 +18,6 @@ and only a few are in flight, so nothing grows with the sample count.
 
 from __future__ import annotations
 
-import collections
 import itertools
 import os
 import signal
@@ -40,6 +39,7 @@ from .path import TraceStats
 from .sampling import scene_key
 from .scene import CompiledScene, Scene
 from .units import Job, Unit, UnitPlan
+from .validation import first_line
 
 MiB = 1024 * 1024
 DEFAULT_MEMORY = 1024 * MiB  # whole render, all processes
@@ -57,7 +57,7 @@ TASK_WAVEFRONTS = 4  # a task holds about this many wavefronts' samples
 # rendering ~10k samples of a small scene on one core (128x128 at 1 spp ran
 # no faster on two workers than inline).
 SMALLEST_SHARED_TASK = 1 << 14
-TASKS_IN_FLIGHT = 2  # per worker: one running, one queued, so no worker waits
+TASKS_IN_FLIGHT = 2  # out per worker: running, or finished and waiting for an earlier one to be merged
 # A finished task's pixel sums held by the parent until merged: at worst one
 # sample per pixel, so as many float64 RGB sums as samples.
 RESULT_BYTES_PER_SAMPLE = 3 * 8
@@ -330,9 +330,9 @@ def _die_with_parent(parent: int) -> None:
 def _init_worker(scene: Scene, capacity: int, parent: int, compiled: CompiledScene | None = None,
                  key=None) -> None:
     _die_with_parent(parent)
-    # The parent decides what an interrupt means; workers just get
-    # terminated.  A forked worker inherits the parent's Python handlers, and
-    # one that caught SIGTERM would make Pool.terminate() wait forever.
+    # The parent decides what an interrupt means; workers just get killed.
+    # A forked worker inherits the parent's Python handlers: a SIGTERM (say,
+    # to the whole process group) must end it, not set the parent's flag.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     tune_allocator()
@@ -552,96 +552,9 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     return RenderResult(film, stats)
 
 
-BROKEN_POOL_SECONDS = 5.0  # the most a pool whose worker died is waited for before it is left behind
 POLL_SECONDS = 0.1  # how often a waiting parent checks for a stop request
 MAX_WORKER_DEATHS = 3  # past this, a render whose workers keep dying (out of memory?) gives up
-
-
-class _WorkerWatch:
-    """Notices pool workers that died (killed, out of memory): a
-    ``multiprocessing.Pool`` replaces them silently and their tasks never finish.
-
-    Reads ``Pool._pool``, the pool's list of worker processes: the only view
-    of them multiprocessing offers.  Workers never exit on their own during a
-    render, so any exit code is a death.
-    """
-
-    def __init__(self, pool):
-        self.pool, self.known, self.codes = pool, {}, []
-
-    def follow(self, pool) -> None:
-        """Watch a new pool instead (the old one's workers were terminated on purpose)."""
-        self.pool, self.known = pool, {}
-
-    def deaths(self) -> int:
-        for process in list(self.pool._pool):
-            self.known.setdefault(process.pid, process)
-        dead = [pid for pid, process in self.known.items() if process.exitcode is not None]
-        for pid in dead:
-            self.codes.append(self.known.pop(pid).exitcode)
-        if len(self.codes) > MAX_WORKER_DEATHS:
-            causes = ", ".join(sorted({_exit_cause(code) for code in self.codes}))
-            raise RenderError(f"{len(self.codes)} worker processes died ({causes}); "
-                              "if the system ran out of memory, lower --memory or --workers")
-        return len(dead)
-
-
-RESULT_PIPE_BYTES = 1 << 20  # Linux's default pipe-max-size: the most an unprivileged process may ask for
-
-
-def _widen_result_pipe(pool) -> None:
-    """Let a task's result (its pixel sums: ~200 KiB for half of a 128x128
-    image at 4 spp) fit in the result pipe at once.  Through the default 64 KiB
-    pipe the worker wrote it in pieces, each waiting for the parent's result
-    thread to wake and read, and half a 128x128 image took ~5 ms to arrive
-    (a twentieth of that render).  Linux only (``F_SETPIPE_SZ``); a refusal
-    leaves the pipe as it was.  Private API, as :class:`_WorkerWatch`.
-    """
-    f_setpipe_sz = 1031  # fcntl.F_SETPIPE_SZ (named in Python 3.10+ on Linux only)
-    try:
-        import fcntl
-
-        fcntl.fcntl(pool._outqueue._writer.fileno(), getattr(fcntl, "F_SETPIPE_SZ", f_setpipe_sz), RESULT_PIPE_BYTES)
-    except (ImportError, AttributeError, OSError):
-        pass
-
-
-def _end_broken_pool(pool, ctx) -> None:
-    """Terminate a pool one of whose workers died, however it died.
-
-    A worker killed while waiting for a task holds the task queue's read lock
-    for ever (a semaphore is not released with its holder), and one killed
-    while sending a result the result queue's write lock; ``Pool.terminate()``
-    takes both, and then joins every worker, including any the pool started
-    meanwhile in place of the dead one, which may be waiting on the dead one's
-    lock.  So the two locks are replaced by fresh ones, and while
-    ``terminate()`` runs every worker still running is killed (their tasks run
-    again in the new pool anyway); a ``terminate()`` that still has not
-    returned after ``BROKEN_POOL_SECONDS`` is left behind.  Private API, as
-    :class:`_WorkerWatch`.
-    """
-    from multiprocessing.connection import wait
-
-    def kill_running() -> None:
-        processes = list(pool._pool)
-        ended = set(wait([p.sentinel for p in processes], 0))  # by sentinel: never signals a reaped pid
-        for p in processes:
-            if p.sentinel not in ended:
-                p.kill()
-
-    kill_running()
-    pool._inqueue._rlock = ctx.Lock()
-    if getattr(pool._outqueue, "_wlock", None) is not None:
-        pool._outqueue._wlock = ctx.Lock()
-    ender = threading.Thread(target=pool.terminate, daemon=True)
-    ender.start()
-    deadline = time.monotonic() + BROKEN_POOL_SECONDS
-    while ender.is_alive() and time.monotonic() < deadline:
-        ender.join(0.2)
-        kill_running()
-    # A terminate() still waiting then (on a handler thread of the broken
-    # pool) is left behind: every worker of that pool is dead, and a daemon
-    # thread does not hold the command's exit.
+ENDING_SECONDS = 5.0  # the most a finished render's workers are given to exit before they are killed
 
 
 def _exit_cause(code: int) -> str:
@@ -665,8 +578,113 @@ def _run_inline(cs, capacity, tasks, merge, stopped) -> None:
         _WORKER[:] = saved
 
 
+def _serve(conn, scene, capacity, parent, compiled, key) -> None:
+    """A worker process: run each task the parent sends, send back its result.
+
+    An error is sent back too, with its traceback, and raised in the parent.
+    None from the parent ends the worker.
+    """
+    _init_worker(scene, capacity, parent, compiled, key)
+    while (task := conn.recv()) is not None:
+        try:
+            reply = (True, run_task(task))
+        except Exception as e:  # noqa: BLE001 (any error of the task is the parent's to report)
+            import traceback
+
+            reply = (False, (e, traceback.format_exc()))
+        try:
+            conn.send(reply)
+        except Exception as e:  # noqa: BLE001 (an error that does not pickle)
+            conn.send((False, (RuntimeError(f"{type(e).__name__}: {first_line(e)}"), reply[1][1])))
+
+
+class WorkerTraceback(Exception):
+    """Where a task failed in its worker process: the ``__cause__`` of the error re-raised in the parent."""
+
+    def __str__(self) -> str:
+        return f"in the worker process:\n{self.args[0]}"
+
+
+@dataclass
+class _WorkerProcess:
+    process: object  # multiprocessing.Process
+    conn: object  # the parent's end of its pipe
+    task: int | None = None  # the number of the task it is running
+
+
+class _Workers:
+    """Worker processes, each with a pipe of its own: the parent sends one
+    task at a time and reads back its result.
+
+    In place of ``multiprocessing.Pool``, whose start (three handler threads),
+    result path and end cost ~10 ms of a 0.1 s render, and which needed its
+    private state to notice a dead worker or to end a pool whose dead worker
+    took a shared queue's lock with it.  Here nothing is shared: a worker
+    that dies (killed, out of memory) is seen on its process sentinel, its
+    task goes back to the queue and a new worker takes its place.
+    """
+
+    def __init__(self, ctx, count: int, initargs: tuple):
+        self.ctx, self.initargs, self.exit_codes, self.all = ctx, initargs, [], []
+        try:
+            for _ in range(count):
+                self.all.append(self._start())
+        except BaseException:  # a fork that failed, an interrupt: no worker is left behind
+            self.kill()
+            raise
+
+    def _start(self) -> _WorkerProcess:
+        ours, theirs = self.ctx.Pipe()
+        process = self.ctx.Process(target=_serve, args=(theirs, *self.initargs), daemon=True,
+                                   name="wavefront worker")
+        process.start()
+        theirs.close()
+        return _WorkerProcess(process, ours)
+
+    def bury(self, worker: _WorkerProcess, replace: bool) -> None:
+        """Note a dead worker's exit; start another in its place if there is work left."""
+        worker.conn.close()
+        worker.process.join()
+        self.exit_codes.append(worker.process.exitcode)
+        if len(self.exit_codes) > MAX_WORKER_DEATHS:
+            causes = ", ".join(sorted({_exit_cause(code) for code in self.exit_codes}))
+            raise RenderError(f"{len(self.exit_codes)} worker processes died ({causes}); "
+                              "if the system ran out of memory, lower --memory or --workers")
+        i = self.all.index(worker)
+        if replace:
+            self.all[i] = self._start()
+        else:
+            del self.all[i]
+
+    def kill(self) -> None:
+        """End every worker now, whatever it is doing."""
+        for worker in self.all:
+            worker.process.kill()
+        for worker in self.all:
+            worker.conn.close()
+            worker.process.join()
+
+    def end(self) -> None:
+        """End every worker (all idle: the render has finished), all at once."""
+        for worker in self.all:
+            # None, not just closing the pipe: workers forked later hold
+            # copies of this end, so the worker would never see it close
+            try:
+                worker.conn.send(None)
+            except OSError:
+                pass  # it died meanwhile
+            worker.conn.close()
+        deadline = time.monotonic() + ENDING_SECONDS
+        for worker in self.all:
+            worker.process.join(max(0.0, deadline - time.monotonic()))
+            if worker.process.exitcode is None:
+                worker.process.kill()
+                worker.process.join()
+
+
 def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     import multiprocessing  # here: a render of one task (or one worker) runs inline and never needs it
+    from multiprocessing.connection import wait
 
     fork = "fork" in multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if fork else "spawn")
@@ -674,46 +692,68 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     # doing both in each of them (first imports of the BVH and of
     # numpy.random included) held back the first tasks by ~40 ms, 8 % of W2.
     compiled, key = (cs, scene_key(scene.render.seed)) if fork else (None, None)
-
-    def start_pool():
-        return ctx.Pool(workers, initializer=_init_worker, initargs=(scene, capacity, os.getpid(), compiled, key))
-
-    pool = start_pool()
-    _widen_result_pipe(pool)
-    watch = _WorkerWatch(pool)
+    pool = _Workers(ctx, workers, (scene, capacity, os.getpid(), compiled, key))
     try:
-        # A bounded window of tasks in flight, merged strictly in task order:
-        # the plan is never materialised, however many samples it has.
-        pending = collections.deque()  # (task, its AsyncResult)
-        tasks = iter(tasks)
+        # Tasks are numbered and merged strictly in that order; at most a
+        # window of them is out (running, or finished and waiting for an
+        # earlier one), so the plan is never materialised and what waits to
+        # be merged is bounded, however many samples the render has.
+        plan = enumerate(tasks)
+        window = TASKS_IN_FLIGHT * workers
+        lost = []  # (number, task) of dead workers, run again first (lowest first): a result
+        task_of, finished, merged, issued = {}, {}, 0, 0  # depends on its task alone, so the image is unchanged
+        planned = False  # every task of the plan has been given out
 
-        def submit() -> None:
-            task = next(tasks, None)
-            if task is not None:
-                pending.append((task, pool.apply_async(run_task, (task,))))
+        def give(worker: _WorkerProcess) -> None:
+            nonlocal issued, planned
+            if lost:
+                number, task = lost.pop(0)
+            elif planned or issued - merged >= window:
+                return
+            elif (item := next(plan, None)) is None:
+                planned = True
+                return
+            else:
+                (number, task), issued = item, issued + 1
+            task_of[number], worker.task = task, number
+            try:
+                worker.conn.send(task)
+            except OSError:
+                pass  # it has just died: its sentinel says so, and the task goes back to `lost`
 
-        for _ in range(TASKS_IN_FLIGHT * workers):
-            submit()
-        while pending:
-            while not pending[0][1].ready():
-                if stopped():
-                    raise RenderInterrupted
-                pending[0][1].wait(POLL_SECONDS)
-                if watch.deaths():
-                    # A dead worker's task is lost, and if it died waiting for work it
-                    # took the pool's task-queue lock with it, so the pool is replaced
-                    # whole.  A task's result depends on the task alone: every
-                    # unfinished one is submitted again and the image is unchanged.
-                    _end_broken_pool(pool, ctx)
-                    pool = start_pool()
-                    _widen_result_pipe(pool)
-                    watch.follow(pool)
-                    for i, (task, result) in enumerate(pending):
-                        if not result.ready():
-                            pending[i] = (task, pool.apply_async(run_task, (task,)))
-            result = pending.popleft()[1].get()  # re-raises a task's error
-            submit()
-            merge(result)
-    finally:
-        pool.terminate()
-        pool.join()
+        while True:
+            for worker in pool.all:
+                if worker.task is None:
+                    give(worker)
+            if not task_of:
+                break
+            busy = [w.conn for w in pool.all if w.task is not None]
+            ready = set(wait(busy + [w.process.sentinel for w in pool.all], POLL_SECONDS))
+            if stopped():
+                raise RenderInterrupted
+            for worker in list(pool.all):
+                if worker.task is not None and worker.conn in ready:
+                    try:
+                        ok, value = worker.conn.recv()
+                    except (EOFError, OSError):  # it died sending: its sentinel says so
+                        ok, value = None, None
+                    if ok is False:
+                        error, where = value
+                        raise error from WorkerTraceback(where)  # the task's own error
+                    if ok:
+                        finished[worker.task] = value
+                        del task_of[worker.task]
+                        worker.task = None
+                        give(worker)  # at once: it works while the parent merges
+                if worker.process.sentinel in ready or not worker.process.is_alive():
+                    if worker.task is not None:
+                        lost.append((worker.task, task_of[worker.task]))
+                        lost.sort(key=lambda item: item[0])
+                    pool.bury(worker, replace=bool(lost) or not planned)
+            while merged in finished:
+                merge(finished.pop(merged))
+                merged += 1
+    except BaseException:
+        pool.kill()
+        raise
+    pool.end()
