@@ -338,9 +338,11 @@ class BVH:
     def _build_traversal_tables(self, boxes: np.ndarray) -> None:
         """float32 child boxes per octant: ``octant_boxes (12, 8K)``; ``boxes`` is (6, K) float64.
 
-        Column ``octant * K + node`` holds node's two children; rows are, per
-        child, the x, y, z planes the octant's rays enter through, then the
-        planes they leave through.  ``octant_left (8K,)`` gives the left
+        Column ``octant * K + node`` holds node's two children; rows are the
+        x, y, z planes the octant's rays enter through (left child, right
+        child for each axis), then the planes they leave through (rows
+        ``(enter/leave, axis, child)``, so that the slab test's reductions
+        over axes run on contiguous rows).  ``octant_left (8K,)`` gives the left
         child's column in the same octant; the right child's is the next.
         Node-major trees keep one "octant" (lo then hi planes, ``(K, 12)``
         rows) and ``descendant_boxes``; see NODE_MAJOR_NODES and STEP_LEVELS.
@@ -384,14 +386,14 @@ class BVH:
         # working set 8 times bigger (rays of every octant leave a terrain), for a min and a
         # max per axis on pair-minor columns; the 1M terrain's tables 100 MB -> 12.6 MB.
         self.octants = 1 if self.node_major else 8
-        tables = np.empty((2, 2, 3, self.octants, k), dtype=f32)  # child, enter/leave (lo/hi), axis, octant, node
+        tables = np.empty((2, 3, 2, self.octants, k), dtype=f32)  # enter/leave (lo/hi), axis, child, octant, node
         for octant in range(self.octants):
             for axis in range(3):
                 negative = (octant >> axis) & 1
                 enter, leave = (hi, lo) if negative else (lo, hi)
                 for side, child in enumerate((left, right)):
-                    tables[side, 0, axis, octant] = enter[axis, child]
-                    tables[side, 1, axis, octant] = leave[axis, child]
+                    tables[0, axis, side, octant] = enter[axis, child]
+                    tables[1, axis, side, octant] = leave[axis, child]
         self.octant_boxes = tables.reshape(12, self.octants * k)
         offset = np.arange(self.octants)[:, None] * k
         self.octant_left = (left + offset).ravel()  # the right child is the next column
@@ -400,7 +402,7 @@ class BVH:
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (K, 12)
             # Several levels at a step where all are full: node n's descendants `levels`
-            # down are 2^levels n + 2^levels - 1 + g (g < 2^levels), (2^levels, lo/hi, axis)
+            # down are 2^levels n + 2^levels - 1 + g (g < 2^levels), (lo/hi, axis, 2^levels)
             # per row.  A grandchild's box lies in its parent's, so testing the four at once
             # culls what two steps did; it tests ~10 % fewer boxes than two steps (60 % of
             # children survive on the 1M terrain) with one gather and one set of pair
@@ -411,7 +413,7 @@ class BVH:
                 width = 1 << levels
                 below = width * np.arange(inner)[:, None] + (width - 1) + np.arange(width)  # (inner, width)
                 self.descendant_boxes[levels] = np.ascontiguousarray(
-                    np.stack((lo[:, below], hi[:, below])).transpose(2, 3, 0, 1).reshape(inner, 6 * width))
+                    np.stack((lo[:, below], hi[:, below])).transpose(2, 0, 1, 3).reshape(inner, 6 * width))
             # the top of the tree as columns too (see TOP_NODES): {levels: (6 * 2^levels, top)}
             self.top_boxes = {levels: np.ascontiguousarray(table[:TOP_NODES].T)
                               for levels, table in self.descendant_boxes.items()}
@@ -632,9 +634,14 @@ class BVH:
                 r = rays.take(ray, axis=1, mode="wrap")[:, None, :]
                 b -= r[:3]
                 b *= r[3:]
-                near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
-                entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), floor)
-                leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
+                near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
+                entry, leave = near[0], far[0]  # in place, as in walk
+                np.fmax(entry, near[1], out=entry)
+                np.fmax(entry, near[2], out=entry)
+                np.fmax(entry, floor, out=entry)
+                np.fmin(leave, far[1], out=leave)
+                np.fmin(leave, far[2], out=leave)
+                np.minimum(leave, to_beat.take(ray), out=leave)
                 slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
                 pair = slot % ray.size
                 row = node.take(pair) * self.leaf_size + slot // ray.size  # slot j of node k at k * leaf_size + j
@@ -721,19 +728,27 @@ class BVH:
                 r = rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
                 if top is not None and (2 << depth) - 1 <= top.shape[1]:  # every node of the depth is in it
-                    t = top.take(node, axis=1, mode="wrap").reshape(1 << levels, 2, 3, pairs)
+                    t = top.take(node, axis=1, mode="wrap")
                 elif levels > 1:
-                    t = gather_columns(self.descendant_boxes[levels], node).reshape(1 << levels, 2, 3, pairs)
+                    t = gather_columns(self.descendant_boxes[levels], node)
                 else:
-                    t = gather_columns(self.octant_boxes, node).reshape(2, 2, 3, pairs)  # child, enter/leave, axis
-                t -= r[:3]
-                t *= r[3:]
+                    t = gather_columns(self.octant_boxes, node)
+                t = t.reshape(2, 3, -1, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
+                t -= r[:3, None]
+                t *= r[3:, None]
                 if self.octants == 1:  # lo/hi planes: the nearer of each pair is where the ray enters
-                    t = np.fmin(t[:, 0], t[:, 1]), np.fmax(t[:, 0], t[:, 1])
+                    near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
                 else:
-                    t = t[:, 0], t[:, 1]
-                entry = np.fmax(np.fmax(np.fmax(t[0][:, 0], t[0][:, 1]), t[0][:, 2]), floor)
-                leave = np.fmin(np.fmin(np.fmin(t[1][:, 0], t[1][:, 1]), t[1][:, 2]), to_beat.take(ray))
+                    near, far = t[0], t[1]
+                # in place, into each's first axis: fewer and smaller temporaries (the pairs'
+                # arrays stay in cache; see TRAVERSAL_BATCH)
+                entry, leave = near[0], far[0]
+                np.fmax(entry, near[1], out=entry)
+                np.fmax(entry, near[2], out=entry)
+                np.fmax(entry, floor, out=entry)
+                np.fmin(leave, far[1], out=leave)
+                np.fmin(leave, far[2], out=leave)
+                np.fmin(leave, to_beat.take(ray), out=leave)
                 keep = (entry <= leave).ravel().nonzero()[0]  # <=: keep ties; left children first, then right
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
