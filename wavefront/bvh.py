@@ -630,9 +630,8 @@ class BVH:
             # np.minimum, not fmin, at the end of `leave`: a padding slot's NaN must survive to
             # fail the test (a real box is never NaN on all three axes: its planes differ on each)
             else:
-                b = gather_columns(self.leaf_boxes32, node).reshape(2, 3, self.leaf_size, -1)  # lo/hi, axis, slot, pair
                 r = rays.take(ray, axis=1, mode="wrap")[:, None, :]
-                b -= r[:3]
+                b = gather_minus(self.leaf_boxes32, node, (2, 3, self.leaf_size, ray.size), r[:3])  # lo/hi, axis, slot, pair
                 b *= r[3:]
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
                 entry, leave = near[0], far[0]  # in place, as in walk
@@ -699,10 +698,22 @@ class BVH:
                 columns = np.empty(rows.shape[::-1], dtype=rows.dtype)
                 np.copyto(columns, rows.T)
                 return columns
+
+            def gather_minus(table, node, shape, minus):
+                """``gather_columns(table, node).reshape(shape) - minus``, with the transposed
+                copy done by the subtraction itself (one pass over the gathered rows instead
+                of two: the leaf pass ~15 % faster)."""
+                rows = table.take(node, axis=0, mode="wrap")
+                return np.subtract(rows.T.reshape(shape), minus, out=np.empty(shape, dtype=rows.dtype))
         else:
             def gather_columns(table, node):
                 """``table``'s columns ``node``: (R, P) from a (R, K) table."""
                 return table.take(node, axis=1, mode="wrap")
+
+            def gather_minus(table, node, shape, minus):
+                columns = gather_columns(table, node).reshape(shape)
+                columns -= minus
+                return columns
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
@@ -723,18 +734,17 @@ class BVH:
                     parts = [p for p in parts if p is not None]
                     return tuple(np.concatenate(x) for x in zip(*parts)) if parts else None
                 pairs = ray.size
-                levels = min(STEP_LEVELS, last - depth) if self.node_major else 1
+                levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else 1  # one below the first leaves
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
                 r = rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
+                shape = (2, 3, 1 << levels, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
                 if top is not None and (2 << depth) - 1 <= top.shape[1]:  # every node of the depth is in it
-                    t = top.take(node, axis=1, mode="wrap")
-                elif levels > 1:
-                    t = gather_columns(self.descendant_boxes[levels], node)
+                    t = top.take(node, axis=1, mode="wrap").reshape(shape)
+                    t -= r[:3, None]
                 else:
-                    t = gather_columns(self.octant_boxes, node)
-                t = t.reshape(2, 3, -1, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
-                t -= r[:3, None]
+                    t = gather_minus(self.descendant_boxes[levels] if levels > 1 else self.octant_boxes, node,
+                                     shape, r[:3, None])
                 t *= r[3:, None]
                 if self.octants == 1:  # lo/hi planes: the nearer of each pair is where the ray enters
                     near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
