@@ -89,7 +89,12 @@ LEAF_ROUNDS_ABOVE = 2
 # (2048 was within noise of 4096); but whole W2 renders in one process were
 # ~3 % faster at 8192, so small trees keep it.
 TRAVERSAL_BATCH = 8192
-TRAVERSAL_BATCH_BIG = 4096  # for node-major trees: 1M-triangle terrain renders ~10 % faster than at 8192
+# Node-major trees: at 4096 the 1M-triangle terrain rendered ~10 % faster than at 8192 while
+# every slab test wrote eight fresh arrays; with the reductions in place and the transposed
+# copies folded into the subtraction (session 6), 8192 is ~4 % faster than 4096 (intersection
+# in the render, 3 interleaved runs each: ~1575 against ~1660 ns a segment; 12288 and 16384
+# slower again): half the NumPy calls per ray, and a level's pairs still fit in cache.
+TRAVERSAL_BATCH_BIG = 8192
 # What one batch's walk may hold at once, whatever the geometry.  A ray's
 # (ray, node) pairs grow with the boxes it enters: a ray at the hub of a fan
 # of triangles (an OBJ polygon of 200,000 sides) enters every box, and 64
