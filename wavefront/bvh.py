@@ -140,6 +140,7 @@ OUTSIZED_SHARE = 1 / 64
 # gathers were two thirds of the traversal.  Small trees (W2: ~250 nodes) fit
 # in cache, where the row layout's contiguous arithmetic is faster.
 NODE_MAJOR_NODES = 1 << 14
+CACHE_LINE = 64  # bytes (x86-64, ARMv8 cores alike); see line_aligned
 # ... but the top of a node-major tree, its first TOP_NODES nodes (all levels above depth 13),
 # is small enough to stay in cache whatever the tree: there its boxes are also stored one row
 # per plane, and a level's columns are gathered directly (in cache, a gathered column costs no
@@ -200,6 +201,20 @@ def float32_up(x) -> np.ndarray:
 def float32_down(x) -> np.ndarray:
     """``x`` in float32, rounded towards -inf."""
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
+
+
+def line_aligned(a: np.ndarray) -> np.ndarray:
+    """A C-ordered copy of ``a`` whose first element starts a cache line (CACHE_LINE bytes).
+
+    A node-major table's rows are gathered cold, one random row at a time; rows of a
+    multiple of 64 bytes then span no more lines than they must (a 192-byte row 16 bytes
+    past a line spans four): cold gathers of such rows measured ~10 % faster.
+    """
+    raw = np.empty(a.nbytes + CACHE_LINE, dtype=np.uint8)
+    start = -raw.ctypes.data % CACHE_LINE
+    out = raw[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    np.copyto(out, a)
+    return out
 
 
 def build_levels(lo: np.ndarray, hi: np.ndarray, members: np.ndarray, leaf_size: int = LEAF_SIZE) -> dict:
@@ -417,7 +432,7 @@ class BVH:
                 inner = (1 << max(self.first_leaf_depth - levels + 1, 0)) - 1  # nodes `levels` full levels above the first leaves
                 width = 1 << levels
                 below = width * np.arange(inner)[:, None] + (width - 1) + np.arange(width)  # (inner, width)
-                self.descendant_boxes[levels] = np.ascontiguousarray(
+                self.descendant_boxes[levels] = line_aligned(
                     np.stack((lo[:, below], hi[:, below])).transpose(2, 0, 1, 3).reshape(inner, 6 * width))
             # the top of the tree as columns too (see TOP_NODES): {levels: (6 * 2^levels, top)}
             self.top_boxes = {levels: np.ascontiguousarray(table[:TOP_NODES].T)
@@ -428,7 +443,7 @@ class BVH:
                     (self.leaf_center32.reshape(3 * self.leaf_size, k), self.leaf_reach32)).T)  # (K, 4 leaf_size)
                 self.leaf_center32 = self.leaf_reach32 = None
             else:
-                self.leaf_boxes32 = np.ascontiguousarray(self.leaf_boxes32.T)  # (K, 6 leaf_size)
+                self.leaf_boxes32 = line_aligned(self.leaf_boxes32.T)  # (K, 6 leaf_size)
 
     def _plane_tables(self, tree_extent: float, pad: float) -> np.ndarray | None:
         """Each triangle slot's plane, scaled by its margin: ``(leaf_size * K, 4)``
@@ -790,8 +805,10 @@ class BVH:
                     leaf = is_leaf.nonzero()[0]
                     inner = None
                     if leaf.size:
-                        test_leaves(ray.take(leaf), node.take(leaf) % k, entry.ravel().take(keep.take(leaf)),
-                                    rays_walking)  # column -> node
+                        leaf_node = node.take(leaf)
+                        if self.octants > 1:
+                            leaf_node %= k  # column -> node
+                        test_leaves(ray.take(leaf), leaf_node, entry.ravel().take(keep.take(leaf)), rays_walking)
                         inner = (~is_leaf).nonzero()[0]
                         ray, node = ray.take(inner), node.take(inner)
                 if depth == stop:
