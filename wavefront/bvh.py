@@ -172,7 +172,28 @@ STEP_LEVELS = 2
 # - BIG_LEAF_SIZE 4 or 16, TRAVERSAL_BATCH_BIG 2048 to 8192, TOP_NODES 0 to 32767,
 #   STEP_LEVELS 3, SUBTREE_LEVELS 3 or 5, SUBTREE_ROUNDS 4, BIG_LEAF_ROUNDS 2: within noise
 #   (a few per cent) or slower.
-# Where the time goes there (per segment, ~2040 ns in the tree): the walk's slab tests ~640
+# ... and in session 6 (intersection of a 1M-terrain render's own recorded rays, CPU per
+# ray, ~1550-1700 ns; or in the render itself):
+# - transparent huge pages: nothing to do, the tables already sit on them (NumPy madvises
+#   arrays of 4 MiB and more; 86-100 % of each big table's pages were huge pages);
+# - a treelet-contiguous node layout: breadth-first numbering of a full tree already keeps
+#   a node's descendants at each level side by side (a depth-13 node's four grandchildren's
+#   rows are adjacent, and their sixteen leaves' rows);
+# - reordering each call's rays by a Morton code of their origins (with or without their
+#   octant first): 1697-1811 against 1637-1688 with the sort.  The rays of a batch share
+#   few leaves whatever their order (3464 (ray, leaf) pairs over 2823 distinct leaves per
+#   4096 rays): the terrain's triangles are smaller than a pixel's footprint;
+# - one 384-byte record per leaf (slot boxes, planes and primitives): the plane and
+#   primitive gathers fell from ~43 to ~22 ms, the bigger rows' gather and transposition
+#   rose by ~55 ms (~1835 against ~1700);
+# - the top's boxes as rows gathered by gather_minus instead of columns: slower in cache
+#   (13-28 against 11-12 ns a pair); 16-byte (complex128) units for the transposed copies:
+#   no gain once the copy is folded into the subtraction; two-dimensional nonzero instead
+#   of the flat one and a division: 2.5-5 times slower;
+# - at TRAVERSAL_BATCH_BIG 8192, BIG_LEAF_ROUNDS 2, SUBTREE_ROUNDS 2, SUBTREE_LEVELS 3 or
+#   5, STEP_LEVELS 3: within noise (BIG_LEAF_ROUNDS 2, 4 runs each: 1619-1655 against
+#   1607-1653) or slower (STEP_LEVELS 3 and SUBTREE_ROUNDS 2 by ~7 %).
+# Where the time goes there (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
 # of which 1.1 hit: in leaf order a ray over the rough surface often meets a farther
@@ -651,7 +672,8 @@ class BVH:
             # fail the test (a real box is never NaN on all three axes: its planes differ on each)
             else:
                 r = rays.take(ray, axis=1, mode="wrap")[:, None, :]
-                b = gather_minus(self.leaf_boxes32, node, (2, 3, self.leaf_size, ray.size), r[:3])  # lo/hi, axis, slot, pair
+                shape = (2, 3, self.leaf_size, ray.size)  # lo/hi, axis, slot, pair
+                b = gather_minus(self.leaf_boxes32, node, shape, r[:3])
                 b *= r[3:]
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
                 entry, leave = near[0], far[0]  # in place, as in walk
