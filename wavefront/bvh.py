@@ -753,6 +753,7 @@ class BVH:
                 return table.take(node, axis=1, mode="wrap")
 
             def gather_minus(table, node, shape, minus):
+                """``gather_columns(table, node).reshape(shape) - minus``."""
                 columns = gather_columns(table, node).reshape(shape)
                 columns -= minus
                 return columns
@@ -793,7 +794,7 @@ class BVH:
                 else:
                     near, far = t[0], t[1]
                 # in place, into each's first axis: fewer and smaller temporaries (the pairs'
-                # arrays stay in cache; see TRAVERSAL_BATCH)
+                # arrays stay in cache; see TRAVERSAL_BATCH_BIG)
                 entry, leave = near[0], far[0]
                 np.fmax(entry, near[1], out=entry)
                 np.fmax(entry, near[2], out=entry)
