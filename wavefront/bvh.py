@@ -192,7 +192,12 @@ STEP_LEVELS = 2
 #   of the flat one and a division: 2.5-5 times slower;
 # - at TRAVERSAL_BATCH_BIG 8192, BIG_LEAF_ROUNDS 2, SUBTREE_ROUNDS 2, SUBTREE_LEVELS 3 or
 #   5, STEP_LEVELS 3: within noise (BIG_LEAF_ROUNDS 2, 4 runs each: 1619-1655 against
-#   1607-1653) or slower (STEP_LEVELS 3 and SUBTREE_ROUNDS 2 by ~7 %).
+#   1607-1653) or slower (STEP_LEVELS 3 and SUBTREE_ROUNDS 2 by ~7 %);
+# - the triangles' exact-test rows padded to 16 fields and cache-aligned (two whole lines
+#   instead of two or three; cold gathers ~10 % faster in isolation): in the render,
+#   intersection 1604/1535/1556/1514 against 1582/1527/1642/1520 ns a segment.  The exact
+#   tests' gather of those rows (~73 ns a row in the render, ~28 in isolation) is the
+#   largest single cold-miss cost left (~1.9 a segment).
 # Where the time goes there (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
