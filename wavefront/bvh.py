@@ -191,8 +191,9 @@ STEP_LEVELS = 2
 #   no gain once the copy is folded into the subtraction; two-dimensional nonzero instead
 #   of the flat one and a division: 2.5-5 times slower;
 # - at TRAVERSAL_BATCH_BIG 8192, BIG_LEAF_ROUNDS 2, SUBTREE_ROUNDS 2, SUBTREE_LEVELS 3 or
-#   5, STEP_LEVELS 3: within noise (BIG_LEAF_ROUNDS 2, 4 runs each: 1619-1655 against
-#   1607-1653) or slower (STEP_LEVELS 3 and SUBTREE_ROUNDS 2 by ~7 %);
+#   5, STEP_LEVELS 3, TOP_NODES 32767: within noise (BIG_LEAF_ROUNDS 2, 4 runs each:
+#   1619-1655 against 1607-1653; TOP_NODES 32767, 8 runs each: median 1620 against 1620)
+#   or slower (STEP_LEVELS 3 and SUBTREE_ROUNDS 2 by ~7 %);
 # - the triangles' exact-test rows padded to 16 fields and cache-aligned (two whole lines
 #   instead of two or three; cold gathers ~10 % faster in isolation): in the render,
 #   intersection 1604/1535/1556/1514 against 1582/1527/1642/1520 ns a segment.  The exact
