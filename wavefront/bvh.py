@@ -89,7 +89,12 @@ LEAF_ROUNDS_ABOVE = 2
 # (2048 was within noise of 4096); but whole W2 renders in one process were
 # ~3 % faster at 8192, so small trees keep it.
 TRAVERSAL_BATCH = 8192
-TRAVERSAL_BATCH_BIG = 4096  # for node-major trees: 1M-triangle terrain renders ~10 % faster than at 8192
+# Node-major trees: at 4096 the 1M-triangle terrain rendered ~10 % faster than at 8192 while
+# every slab test wrote eight fresh arrays; with the reductions in place and the transposed
+# copies folded into the subtraction (session 6), 8192 is ~4 % faster than 4096 (intersection
+# in the render, 3 interleaved runs each: ~1575 against ~1660 ns a segment; 12288 and 16384
+# slower again): half the NumPy calls per ray, and a level's pairs still fit in cache.
+TRAVERSAL_BATCH_BIG = 8192
 # What one batch's walk may hold at once, whatever the geometry.  A ray's
 # (ray, node) pairs grow with the boxes it enters: a ray at the hub of a fan
 # of triangles (an OBJ polygon of 200,000 sides) enters every box, and 64
@@ -135,6 +140,7 @@ OUTSIZED_SHARE = 1 / 64
 # gathers were two thirds of the traversal.  Small trees (W2: ~250 nodes) fit
 # in cache, where the row layout's contiguous arithmetic is faster.
 NODE_MAJOR_NODES = 1 << 14
+CACHE_LINE = 64  # bytes (x86-64, ARMv8 cores alike); see line_aligned
 # ... but the top of a node-major tree, its first TOP_NODES nodes (all levels above depth 13),
 # is small enough to stay in cache whatever the tree: there its boxes are also stored one row
 # per plane, and a level's columns are gathered directly (in cache, a gathered column costs no
@@ -166,7 +172,34 @@ STEP_LEVELS = 2
 # - BIG_LEAF_SIZE 4 or 16, TRAVERSAL_BATCH_BIG 2048 to 8192, TOP_NODES 0 to 32767,
 #   STEP_LEVELS 3, SUBTREE_LEVELS 3 or 5, SUBTREE_ROUNDS 4, BIG_LEAF_ROUNDS 2: within noise
 #   (a few per cent) or slower.
-# Where the time goes there (per segment, ~2040 ns in the tree): the walk's slab tests ~640
+# ... and in session 6 (intersection of a 1M-terrain render's own recorded rays, CPU per
+# ray, ~1550-1700 ns; or in the render itself):
+# - transparent huge pages: nothing to do, the tables already sit on them (NumPy madvises
+#   arrays of 4 MiB and more; 86-100 % of each big table's pages were huge pages);
+# - a treelet-contiguous node layout: breadth-first numbering of a full tree already keeps
+#   a node's descendants at each level side by side (a depth-13 node's four grandchildren's
+#   rows are adjacent, and their sixteen leaves' rows);
+# - reordering each call's rays by a Morton code of their origins (with or without their
+#   octant first): 1697-1811 against 1637-1688 with the sort.  The rays of a batch share
+#   few leaves whatever their order (3464 (ray, leaf) pairs over 2823 distinct leaves per
+#   4096 rays): the terrain's triangles are smaller than a pixel's footprint;
+# - one 384-byte record per leaf (slot boxes, planes and primitives): the plane and
+#   primitive gathers fell from ~43 to ~22 ms, the bigger rows' gather and transposition
+#   rose by ~55 ms (~1835 against ~1700);
+# - the top's boxes as rows gathered by gather_minus instead of columns: slower in cache
+#   (13-28 against 11-12 ns a pair); 16-byte (complex128) units for the transposed copies:
+#   no gain once the copy is folded into the subtraction; two-dimensional nonzero instead
+#   of the flat one and a division: 2.5-5 times slower;
+# - at TRAVERSAL_BATCH_BIG 8192, BIG_LEAF_ROUNDS 2, SUBTREE_ROUNDS 2, SUBTREE_LEVELS 3 or
+#   5, STEP_LEVELS 3, TOP_NODES 32767: within noise (BIG_LEAF_ROUNDS 2, 4 runs each:
+#   1619-1655 against 1607-1653; TOP_NODES 32767, 8 runs each: median 1620 against 1620)
+#   or slower (STEP_LEVELS 3 and SUBTREE_ROUNDS 2 by ~7 %);
+# - the triangles' exact-test rows padded to 16 fields and cache-aligned (two whole lines
+#   instead of two or three; cold gathers ~10 % faster in isolation): in the render,
+#   intersection 1604/1535/1556/1514 against 1582/1527/1642/1520 ns a segment.  The exact
+#   tests' gather of those rows (~73 ns a row in the render, ~28 in isolation) is the
+#   largest single cold-miss cost left (~1.9 a segment).
+# Where the time goes there (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
 # of which 1.1 hit: in leaf order a ray over the rough surface often meets a farther
@@ -195,6 +228,20 @@ def float32_up(x) -> np.ndarray:
 def float32_down(x) -> np.ndarray:
     """``x`` in float32, rounded towards -inf."""
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
+
+
+def line_aligned(a: np.ndarray) -> np.ndarray:
+    """A C-ordered copy of ``a`` whose first element starts a cache line (CACHE_LINE bytes).
+
+    A node-major table's rows are gathered cold, one random row at a time; rows of a
+    multiple of 64 bytes then span no more lines than they must (a 192-byte row 16 bytes
+    past a line spans four): cold gathers of such rows measured ~10 % faster.
+    """
+    raw = np.empty(a.nbytes + CACHE_LINE, dtype=np.uint8)
+    start = -raw.ctypes.data % CACHE_LINE
+    out = raw[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    np.copyto(out, a)
+    return out
 
 
 def build_levels(lo: np.ndarray, hi: np.ndarray, members: np.ndarray, leaf_size: int = LEAF_SIZE) -> dict:
@@ -338,9 +385,11 @@ class BVH:
     def _build_traversal_tables(self, boxes: np.ndarray) -> None:
         """float32 child boxes per octant: ``octant_boxes (12, 8K)``; ``boxes`` is (6, K) float64.
 
-        Column ``octant * K + node`` holds node's two children; rows are, per
-        child, the x, y, z planes the octant's rays enter through, then the
-        planes they leave through.  ``octant_left (8K,)`` gives the left
+        Column ``octant * K + node`` holds node's two children; rows are the
+        x, y, z planes the octant's rays enter through (left child, right
+        child for each axis), then the planes they leave through (rows
+        ``(enter/leave, axis, child)``, so that the slab test's reductions
+        over axes run on contiguous rows).  ``octant_left (8K,)`` gives the left
         child's column in the same octant; the right child's is the next.
         Node-major trees keep one "octant" (lo then hi planes, ``(K, 12)``
         rows) and ``descendant_boxes``; see NODE_MAJOR_NODES and STEP_LEVELS.
@@ -384,14 +433,14 @@ class BVH:
         # working set 8 times bigger (rays of every octant leave a terrain), for a min and a
         # max per axis on pair-minor columns; the 1M terrain's tables 100 MB -> 12.6 MB.
         self.octants = 1 if self.node_major else 8
-        tables = np.empty((2, 2, 3, self.octants, k), dtype=f32)  # child, enter/leave (lo/hi), axis, octant, node
+        tables = np.empty((2, 3, 2, self.octants, k), dtype=f32)  # enter/leave (lo/hi), axis, child, octant, node
         for octant in range(self.octants):
             for axis in range(3):
                 negative = (octant >> axis) & 1
                 enter, leave = (hi, lo) if negative else (lo, hi)
                 for side, child in enumerate((left, right)):
-                    tables[side, 0, axis, octant] = enter[axis, child]
-                    tables[side, 1, axis, octant] = leave[axis, child]
+                    tables[0, axis, side, octant] = enter[axis, child]
+                    tables[1, axis, side, octant] = leave[axis, child]
         self.octant_boxes = tables.reshape(12, self.octants * k)
         offset = np.arange(self.octants)[:, None] * k
         self.octant_left = (left + offset).ravel()  # the right child is the next column
@@ -400,7 +449,7 @@ class BVH:
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (K, 12)
             # Several levels at a step where all are full: node n's descendants `levels`
-            # down are 2^levels n + 2^levels - 1 + g (g < 2^levels), (2^levels, lo/hi, axis)
+            # down are 2^levels n + 2^levels - 1 + g (g < 2^levels), (lo/hi, axis, 2^levels)
             # per row.  A grandchild's box lies in its parent's, so testing the four at once
             # culls what two steps did; it tests ~10 % fewer boxes than two steps (60 % of
             # children survive on the 1M terrain) with one gather and one set of pair
@@ -410,8 +459,8 @@ class BVH:
                 inner = (1 << max(self.first_leaf_depth - levels + 1, 0)) - 1  # nodes `levels` full levels above the first leaves
                 width = 1 << levels
                 below = width * np.arange(inner)[:, None] + (width - 1) + np.arange(width)  # (inner, width)
-                self.descendant_boxes[levels] = np.ascontiguousarray(
-                    np.stack((lo[:, below], hi[:, below])).transpose(2, 3, 0, 1).reshape(inner, 6 * width))
+                self.descendant_boxes[levels] = line_aligned(
+                    np.stack((lo[:, below], hi[:, below])).transpose(2, 0, 1, 3).reshape(inner, 6 * width))
             # the top of the tree as columns too (see TOP_NODES): {levels: (6 * 2^levels, top)}
             self.top_boxes = {levels: np.ascontiguousarray(table[:TOP_NODES].T)
                               for levels, table in self.descendant_boxes.items()}
@@ -421,7 +470,7 @@ class BVH:
                     (self.leaf_center32.reshape(3 * self.leaf_size, k), self.leaf_reach32)).T)  # (K, 4 leaf_size)
                 self.leaf_center32 = self.leaf_reach32 = None
             else:
-                self.leaf_boxes32 = np.ascontiguousarray(self.leaf_boxes32.T)  # (K, 6 leaf_size)
+                self.leaf_boxes32 = line_aligned(self.leaf_boxes32.T)  # (K, 6 leaf_size)
 
     def _plane_tables(self, tree_extent: float, pad: float) -> np.ndarray | None:
         """Each triangle slot's plane, scaled by its margin: ``(leaf_size * K, 4)``
@@ -628,13 +677,18 @@ class BVH:
             # np.minimum, not fmin, at the end of `leave`: a padding slot's NaN must survive to
             # fail the test (a real box is never NaN on all three axes: its planes differ on each)
             else:
-                b = gather_columns(self.leaf_boxes32, node).reshape(2, 3, self.leaf_size, -1)  # lo/hi, axis, slot, pair
                 r = rays.take(ray, axis=1, mode="wrap")[:, None, :]
-                b -= r[:3]
+                shape = (2, 3, self.leaf_size, ray.size)  # lo/hi, axis, slot, pair
+                b = gather_minus(self.leaf_boxes32, node, shape, r[:3])
                 b *= r[3:]
-                near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1])
-                entry = np.fmax(np.fmax(np.fmax(near[0], near[1]), near[2]), floor)
-                leave = np.minimum(np.fmin(np.fmin(far[0], far[1]), far[2]), to_beat.take(ray))
+                near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
+                entry, leave = near[0], far[0]  # in place, as in walk
+                np.fmax(entry, near[1], out=entry)
+                np.fmax(entry, near[2], out=entry)
+                np.fmax(entry, floor, out=entry)
+                np.fmin(leave, far[1], out=leave)
+                np.fmin(leave, far[2], out=leave)
+                np.minimum(leave, to_beat.take(ray), out=leave)
                 slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
                 pair = slot % ray.size
                 row = node.take(pair) * self.leaf_size + slot // ray.size  # slot j of node k at k * leaf_size + j
@@ -692,10 +746,23 @@ class BVH:
                 columns = np.empty(rows.shape[::-1], dtype=rows.dtype)
                 np.copyto(columns, rows.T)
                 return columns
+
+            def gather_minus(table, node, shape, minus):
+                """``gather_columns(table, node).reshape(shape) - minus``, with the transposed
+                copy done by the subtraction itself (one pass over the gathered rows instead
+                of two: the leaf pass ~15 % faster)."""
+                rows = table.take(node, axis=0, mode="wrap")
+                return np.subtract(rows.T.reshape(shape), minus, out=np.empty(shape, dtype=rows.dtype))
         else:
             def gather_columns(table, node):
                 """``table``'s columns ``node``: (R, P) from a (R, K) table."""
                 return table.take(node, axis=1, mode="wrap")
+
+            def gather_minus(table, node, shape, minus):
+                """``gather_columns(table, node).reshape(shape) - minus``."""
+                columns = gather_columns(table, node).reshape(shape)
+                columns -= minus
+                return columns
         ray = np.arange(ray_ids.size)
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
@@ -716,24 +783,31 @@ class BVH:
                     parts = [p for p in parts if p is not None]
                     return tuple(np.concatenate(x) for x in zip(*parts)) if parts else None
                 pairs = ray.size
-                levels = min(STEP_LEVELS, last - depth) if self.node_major else 1
+                levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else 1  # one below the first leaves
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
                 r = rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
+                shape = (2, 3, 1 << levels, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
                 if top is not None and (2 << depth) - 1 <= top.shape[1]:  # every node of the depth is in it
-                    t = top.take(node, axis=1, mode="wrap").reshape(1 << levels, 2, 3, pairs)
-                elif levels > 1:
-                    t = gather_columns(self.descendant_boxes[levels], node).reshape(1 << levels, 2, 3, pairs)
+                    t = top.take(node, axis=1, mode="wrap").reshape(shape)
+                    t -= r[:3, None]
                 else:
-                    t = gather_columns(self.octant_boxes, node).reshape(2, 2, 3, pairs)  # child, enter/leave, axis
-                t -= r[:3]
-                t *= r[3:]
+                    t = gather_minus(self.descendant_boxes[levels] if levels > 1 else self.octant_boxes, node,
+                                     shape, r[:3, None])
+                t *= r[3:, None]
                 if self.octants == 1:  # lo/hi planes: the nearer of each pair is where the ray enters
-                    t = np.fmin(t[:, 0], t[:, 1]), np.fmax(t[:, 0], t[:, 1])
+                    near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
                 else:
-                    t = t[:, 0], t[:, 1]
-                entry = np.fmax(np.fmax(np.fmax(t[0][:, 0], t[0][:, 1]), t[0][:, 2]), floor)
-                leave = np.fmin(np.fmin(np.fmin(t[1][:, 0], t[1][:, 1]), t[1][:, 2]), to_beat.take(ray))
+                    near, far = t[0], t[1]
+                # in place, into each's first axis: fewer and smaller temporaries (the pairs'
+                # arrays stay in cache; see TRAVERSAL_BATCH_BIG)
+                entry, leave = near[0], far[0]
+                np.fmax(entry, near[1], out=entry)
+                np.fmax(entry, near[2], out=entry)
+                np.fmax(entry, floor, out=entry)
+                np.fmin(leave, far[1], out=leave)
+                np.fmin(leave, far[2], out=leave)
+                np.fmin(leave, to_beat.take(ray), out=leave)
                 keep = (entry <= leave).ravel().nonzero()[0]  # <=: keep ties; left children first, then right
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
@@ -760,8 +834,10 @@ class BVH:
                     leaf = is_leaf.nonzero()[0]
                     inner = None
                     if leaf.size:
-                        test_leaves(ray.take(leaf), node.take(leaf) % k, entry.ravel().take(keep.take(leaf)),
-                                    rays_walking)  # column -> node
+                        leaf_node = node.take(leaf)
+                        if self.octants > 1:
+                            leaf_node %= k  # column -> node
+                        test_leaves(ray.take(leaf), leaf_node, entry.ravel().take(keep.take(leaf)), rays_walking)
                         inner = (~is_leaf).nonzero()[0]
                         ray, node = ray.take(inner), node.take(inner)
                 if depth == stop:
