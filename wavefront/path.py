@@ -109,6 +109,9 @@ ROULETTE_MAX_SURVIVAL = 0.95
 # free-flight distance (intersect_in_media): far above float32 rounding
 # (6e-8), so the cap lies past the distance in any precision.
 FLIGHT_CAP_SLACK = 1e-6
+# A bounce's shadow rays join the next bounce's nearest-hit query (see
+# trace_paths) while the two together are at most this many rays.
+RIDING_RAYS = 2048
 
 
 @dataclass
@@ -218,6 +221,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     emitters = cs.emitters if settings.light_sampling and cs.emitters is not None and len(cs.emitters) else None
     roulette = settings.russian_roulette
     live, next_slot = camera_paths(cs, frame, sampler, job, 0, 0), 0
+    riding = None  # shadow rays whose any-hit query goes with the next bounce's nearest-hit one
     while True:
         live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity)
         if len(live) == 0 or (should_stop is not None and should_stop()):
@@ -225,7 +229,10 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         stats.segments += len(live)
         in_medium = shadows = None
         if cs.media is None:
-            hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
+            if riding is None:
+                hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
+            else:
+                hits, riding = intersect_with_shadows(cs, live, riding, radiance, stats), None
         else:
             hits, first = intersect_in_media(cs, sampler, live)
             live, hits, in_medium, point = travel_media(cs, sampler, live, hits, first)
@@ -240,8 +247,6 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 # one any-hit query for the shadow rays of medium and surface vertices alike
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
                                                                     absorbed, settings.depth, albedo))
-        if shadows is not None:
-            trace_shadow_rays(cs, shadows, radiance, stats)
         if len(live):
             direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo)
             if diffuse is not None:
@@ -253,6 +258,22 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             live = advance(live, surface, direction, absorbed, settings.depth)
         if in_medium is not None:
             live = PathBatch.concat(live, in_medium)
+        # Stage 6 (it only adds to the radiance, which no later stage of the
+        # bounce reads).  A few rays' any-hit query costs what its ~60 NumPy
+        # calls cost whatever the rays, so where paths are few (the tail after
+        # roulette) the shadow rays join the next bounce's nearest-hit query
+        # instead: a hit nearer than a ray's t_max there is exactly an any-hit
+        # (Intersector.occluded's own definition), and their light is added
+        # before anything else of the next bounce, so every sample's sum
+        # keeps its order, bit for bit.  (No media: their shadow rays also
+        # need the transmittance.)
+        if shadows is not None and len(shadows):
+            if cs.media is None and len(live) and len(live) + len(shadows) <= RIDING_RAYS:
+                riding = shadows
+            else:
+                trace_shadow_rays(cs, shadows, radiance, stats)
+    if riding is not None:  # the paths all ended: their last shadow rays on their own
+        trace_shadow_rays(cs, riding, radiance, stats)
     return radiance
 
 
@@ -266,6 +287,24 @@ def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch
         live = PathBatch.concat(live, camera_paths(cs, frame, sampler, job, next_slot, stop))
         next_slot = stop
     return live, next_slot
+
+
+def intersect_with_shadows(cs: CompiledScene, live: PathBatch, shadows: ShadowBatch, radiance,
+                           stats: TraceStats) -> Hits:
+    """Stage 2 with the previous bounce's shadow rays (stage 6) in the same
+    nearest-hit query: the paths' rays with no ``t_max``, the shadow rays
+    with theirs.  The unblocked shadow rays (no hit before ``t_max``) add
+    their contribution; returns the paths' hits, exactly those of a query
+    of their own (every ray's hit is its own, whatever rays go with it)."""
+    n = len(live)
+    stats.shadow_rays += len(shadows)
+    hits = cs.shapes.intersect(np.concatenate((live.origin, shadows.origin), axis=1),
+                               np.concatenate((live.direction, shadows.direction), axis=1),
+                               np.concatenate((np.full(n, np.inf, dtype=shadows.t_max.dtype), shadows.t_max)),
+                               time=None if live.time is None else np.concatenate((live.time, shadows.time)))
+    visible = np.flatnonzero(hits.primitive_idx[n:] < 0)
+    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
+    return Hits(hits.t[:n], hits.primitive_idx[:n])
 
 
 def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
