@@ -18,7 +18,9 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
 5. **sample lights** (``render.light_sampling``): at every diffuse hit,
    one point on an emitter, and a shadow ray towards it;
 6. **trace shadow rays**: their own batch and stage, through the any-hit
-   query; unoccluded ones add their MIS-weighted contribution;
+   query; unoccluded ones add their MIS-weighted contribution (where paths
+   are few, the next bounce's stage 2 answers it: see
+   :func:`intersect_with_shadows`);
 7. **scatter**: hits are routed by material kind, one kernel per kind
    present, and throughput is multiplied by the attenuation; absorbed paths
    end, and so do paths that have reached ``max_depth`` segments;
