@@ -46,7 +46,7 @@ class PathBatch:
         ``np.take`` rather than fancy indexing: see :func:`wavefront.vecmath.gather`.
         """
         if idx.dtype == bool:
-            idx = np.flatnonzero(idx)
+            idx = idx.nonzero()[0]  # np.flatnonzero without its Python wrappers
         # the field names and the method ``take`` (not ``np.take``, a Python
         # wrapper): a few microseconds of every call, a bounce's fixed cost
         # when only a handful of paths are left

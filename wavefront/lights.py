@@ -43,7 +43,7 @@ from .sampling import cos_sin_2pi, random_unit_vector
 from .shapes import Primitives, QuadSet, SphereSet, TriangleSet
 from .shapes.sphere import object_normal, sphere_uv
 from .textures import TextureTable
-from .vecmath import dot, gather, length
+from .vecmath import dot, gather, length, true_rows
 
 SPHERE, QUAD, TRIANGLE = 0, 1, 2  # emitter kinds
 # Below sin^2(1.5 degrees) the cone's 1 - cos(theta_max) cancels in floating
@@ -228,7 +228,7 @@ class EmitterTable:
             point, normal, pdf = np.empty((3, n)), np.empty((3, n)), np.empty(n)
             kind = self.kind.take(e)
             for code, sampler in samplers:
-                sel = np.flatnonzero(kind == code)
+                sel = true_rows(kind == code)
                 if sel.size:
                     p, nrm, pd = sampler(e.take(sel), gather(ref, sel), gather(u, sel),
                                          None if time is None else time.take(sel))
@@ -263,16 +263,16 @@ class EmitterTable:
         The sampled point's ``uv`` is the shape's own: a sphere's from its
         outward normal, a quad's ``(a, b)`` are the two uniforms, a
         triangle's its corners' uv at the square-root map's barycentrics."""
-        rows = np.flatnonzero(self.texture.take(e) >= 0)
+        rows = true_rows(self.texture.take(e) >= 0)
         if rows.size == 0:
             return
         er, k, ur = e.take(rows), kind.take(rows), gather(u, rows)
         uv = np.empty((2, rows.size))
-        spheres = np.flatnonzero(k == SPHERE)
+        spheres = true_rows(k == SPHERE)
         uv[:, spheres] = sphere_uv(object_normal(self.rotation, er.take(spheres), gather(normal, rows.take(spheres))))
-        quads = np.flatnonzero(k == QUAD)
+        quads = true_rows(k == QUAD)
         uv[:, quads] = gather(ur, quads)
-        tris = np.flatnonzero(k == TRIANGLE)
+        tris = true_rows(k == TRIANGLE)
         if tris.size:
             s = np.sqrt(ur[0].take(tris))
             b1 = ur[1].take(tris) * s
@@ -323,12 +323,12 @@ class EmitterTable:
         point = point.astype(np.float64, copy=False)
         kind = self.kind.take(e)
         pdf = np.empty(e.shape[0])
-        spheres = np.flatnonzero(kind == SPHERE)
+        spheres = true_rows(kind == SPHERE)
         if spheres.size:
             es = e.take(spheres)
             pdf[spheres] = sphere_pdf(self._centers(es, None if time is None else time.take(spheres)),
                                       self.radius[es], gather(ref, spheres), gather(point, spheres))
-        flat = np.flatnonzero(kind != SPHERE)
+        flat = true_rows(kind != SPHERE)
         if flat.size:
             ef = e.take(flat)
             pdf[flat] = area_to_solid_angle(1.0 / self.area[ef], gather(ref, flat), gather(point, flat),
@@ -379,7 +379,7 @@ def _cone(center, radius, reference):
     small cones (None: there are none)."""
     axis = center - reference
     distance = length(axis)
-    inside = np.flatnonzero(distance <= radius)
+    inside = true_rows(distance <= radius)
     clamped = np.maximum(distance, _TINY, out=distance)  # the distance's last use
     axis /= clamped
     sin2_max = radius / clamped
@@ -387,7 +387,7 @@ def _cone(center, radius, reference):
     small = sin2_max < SMALL_CONE_SIN2
     one_minus_cos_max = 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max))
     if small.any():  # a lamp 40 radii away: the series only where it is needed, row by row
-        small = np.flatnonzero(small)
+        small = true_rows(small)
         one_minus_cos_max[small] = 0.5 * sin2_max.take(small)
     else:
         small = None

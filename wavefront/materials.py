@@ -25,7 +25,7 @@ import numpy as np
 from .sampling import random_unit_vector
 from .textures import Texture, TextureTable, is_texture, texture_field
 from .validation import color, number, warn
-from .vecmath import dot, gather, normalize, reflect, refract, scatter, schlick
+from .vecmath import dot, gather, normalize, reflect, refract, scatter, schlick, true_rows
 
 # A lambertian scatter direction n + random_unit_vector() vanishes when the
 # random vector is nearly -n; below this squared length fall back to n (the
@@ -259,7 +259,7 @@ class MaterialTable:
         if self.textures is None:
             return value
         node = texture.take(material_idx)
-        rows = np.flatnonzero(node >= 0)
+        rows = true_rows(node >= 0)
         if rows.size:
             value[:, rows] = self.textures.evaluate(node.take(rows), gather(point, rows),
                                                     None if uv is None else gather(uv, rows))
@@ -274,7 +274,7 @@ def scatter_lambertian(direction, normal, front_face, albedo, u):
     Reflection"), so the attenuation is just the albedo.  Never absorbs.
     """
     scattered = normal + random_unit_vector(u[0], u[1])
-    degenerate = np.flatnonzero(dot(scattered, scattered) < DEGENERATE_SQUARED_LENGTH)
+    degenerate = true_rows(dot(scattered, scattered) < DEGENERATE_SQUARED_LENGTH)
     scatter(scattered, degenerate, gather(normal, degenerate))  # rare rows: by index, not a where
     absorbed = np.zeros(direction.shape[1], dtype=bool)
     return albedo, normalize(scattered), absorbed
@@ -321,7 +321,7 @@ def scatter_dielectric(direction, normal, front_face, refraction_index, u):
     cos_theta = np.minimum(-dot(direction, normal), 1.0)
     sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
     total_internal = ratio * sin_theta > 1.0
-    mirror = np.flatnonzero(total_internal | (schlick(cos_theta, ratio) > u[0]))
+    mirror = true_rows(total_internal | (schlick(cos_theta, ratio) > u[0]))
     scattered = refract(direction, normal, ratio)
     # rows that mirror are few and random: write them by index, not with a where
     scatter(scattered, mirror, reflect(gather(direction, mirror), gather(normal, mirror)))

@@ -18,7 +18,9 @@ wavefront.  Each iteration is a list of named stages over *all* live paths:
 5. **sample lights** (``render.light_sampling``): at every diffuse hit,
    one point on an emitter, and a shadow ray towards it;
 6. **trace shadow rays**: their own batch and stage, through the any-hit
-   query; unoccluded ones add their MIS-weighted contribution;
+   query; unoccluded ones add their MIS-weighted contribution (where paths
+   are few, the next bounce's stage 2 answers it: see
+   :func:`intersect_with_shadows`);
 7. **scatter**: hits are routed by material kind, one kernel per kind
    present, and throughput is multiplied by the attenuation; absorbed paths
    end, and so do paths that have reached ``max_depth`` segments;
@@ -63,7 +65,7 @@ from .sampling import (CROSSINGS_PER_SEGMENT, TIME_PAIR, Sampler, bounce_dimensi
 from .geometry import T_MIN
 from .scene import CompiledScene
 from .shapes import Hits
-from .vecmath import dot, gather, scatter, scatter_add
+from .vecmath import dot, gather, scatter, scatter_add, true_rows
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
 # Paths that escape are left in the batch, marked absorbed, while they are at
@@ -109,6 +111,9 @@ ROULETTE_MAX_SURVIVAL = 0.95
 # free-flight distance (intersect_in_media): far above float32 rounding
 # (6e-8), so the cap lies past the distance in any precision.
 FLIGHT_CAP_SLACK = 1e-6
+# A bounce's shadow rays join the next bounce's nearest-hit query (see
+# trace_paths) while the two together are at most this many rays.
+RIDING_RAYS = 2048
 
 
 @dataclass
@@ -218,6 +223,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     emitters = cs.emitters if settings.light_sampling and cs.emitters is not None and len(cs.emitters) else None
     roulette = settings.russian_roulette
     live, next_slot = camera_paths(cs, frame, sampler, job, 0, 0), 0
+    riding = None  # shadow rays whose any-hit query goes with the next bounce's nearest-hit one
     while True:
         live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity)
         if len(live) == 0 or (should_stop is not None and should_stop()):
@@ -225,7 +231,10 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         stats.segments += len(live)
         in_medium = shadows = None
         if cs.media is None:
-            hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
+            if riding is None:
+                hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
+            else:
+                hits, riding = intersect_with_shadows(cs, live, riding, radiance, stats), None
         else:
             hits, first = intersect_in_media(cs, sampler, live)
             live, hits, in_medium, point = travel_media(cs, sampler, live, hits, first)
@@ -240,8 +249,6 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 # one any-hit query for the shadow rays of medium and surface vertices alike
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
                                                                     absorbed, settings.depth, albedo))
-        if shadows is not None:
-            trace_shadow_rays(cs, shadows, radiance, stats)
         if len(live):
             direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo)
             if diffuse is not None:
@@ -253,6 +260,22 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             live = advance(live, surface, direction, absorbed, settings.depth)
         if in_medium is not None:
             live = PathBatch.concat(live, in_medium)
+        # Stage 6 (it only adds to the radiance, which no later stage of the
+        # bounce reads).  A few rays' any-hit query costs what its ~60 NumPy
+        # calls cost whatever the rays, so where paths are few (the tail after
+        # roulette) the shadow rays join the next bounce's nearest-hit query
+        # instead: a hit nearer than a ray's t_max there is exactly an any-hit
+        # (Intersector.occluded's own definition), and their light is added
+        # before anything else of the next bounce, so every sample's sum
+        # keeps its order, bit for bit.  (No media: their shadow rays also
+        # need the transmittance.)
+        if shadows is not None and len(shadows):
+            if cs.media is None and len(live) and len(live) + len(shadows) <= RIDING_RAYS:
+                riding = shadows
+            else:
+                trace_shadow_rays(cs, shadows, radiance, stats)
+    if riding is not None:  # the paths all ended: their last shadow rays on their own
+        trace_shadow_rays(cs, riding, radiance, stats)
     return radiance
 
 
@@ -266,6 +289,24 @@ def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch
         live = PathBatch.concat(live, camera_paths(cs, frame, sampler, job, next_slot, stop))
         next_slot = stop
     return live, next_slot
+
+
+def intersect_with_shadows(cs: CompiledScene, live: PathBatch, shadows: ShadowBatch, radiance,
+                           stats: TraceStats) -> Hits:
+    """Stage 2 with the previous bounce's shadow rays (stage 6) in the same
+    nearest-hit query: the paths' rays with no ``t_max``, the shadow rays
+    with theirs.  The unblocked shadow rays (no hit before ``t_max``) add
+    their contribution; returns the paths' hits, exactly those of a query
+    of their own (every ray's hit is its own, whatever rays go with it)."""
+    n = len(live)
+    stats.shadow_rays += len(shadows)
+    hits = cs.shapes.intersect(np.concatenate((live.origin, shadows.origin), axis=1),
+                               np.concatenate((live.direction, shadows.direction), axis=1),
+                               np.concatenate((np.full(n, np.inf, dtype=shadows.t_max.dtype), shadows.t_max)),
+                               time=None if live.time is None else np.concatenate((live.time, shadows.time)))
+    visible = true_rows(hits.primitive_idx[n:] < 0)
+    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
+    return Hits(hits.t[:n], hits.primitive_idx[:n])
 
 
 def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
@@ -285,7 +326,7 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     rows go on.
     """
     hit = hits.primitive_idx >= 0
-    esc_idx = np.flatnonzero(~hit)
+    esc_idx = true_rows(~hit)
     t, primitive_idx = hits.t, hits.primitive_idx
     gone = None
     if esc_idx.size:
@@ -296,7 +337,7 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
             t, primitive_idx = t.copy(), primitive_idx.copy()
             t[esc_idx], primitive_idx[esc_idx] = 0, 0
         else:
-            hit_idx = np.flatnonzero(hit)
+            hit_idx = true_rows(hit)
             live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
     if len(live) == 0:
         return live, None, None
@@ -340,7 +381,7 @@ def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None
     on_emitter = table.kind.take(surface.material_idx) == emissive
     if gone is not None:
         on_emitter &= ~gone
-    sel = np.flatnonzero(on_emitter)
+    sel = true_rows(on_emitter)
     if sel.size:
         absorbed[sel] = True
         sel = sel[surface.front_face.take(sel)]
@@ -375,7 +416,7 @@ def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
     weight = np.ones(sel.size)
     e = emitters.emitter_of.take(surface.primitive_idx.take(sel))
     # a black emitter is not in the table (e = -1): it adds nothing, at any weight
-    diffuse = np.flatnonzero(~live.specular.take(sel) & (e >= 0))
+    diffuse = true_rows(~live.specular.take(sel) & (e >= 0))
     if diffuse.size:
         rows = sel.take(diffuse)
         e = e.take(diffuse)
@@ -405,14 +446,14 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     lengths.  The contribution is
     ``throughput * albedo / pi * cos * radiance * w_light / p_light``.
     """
-    rows = np.flatnonzero(diffuse & ~absorbed & (live.depth + 1 < max_depth))
+    rows = true_rows(diffuse & ~absorbed & (live.depth + 1 < max_depth))
     u_point, u_choice = light_uniforms(sampler, emitters, live, rows)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(gather(surface.point, rows), u_choice, u_point, time)
     normal = gather(surface.normal, rows)
     p_material = lambertian_pdf(normal, light.direction)
     carries = light.carries if light.carries is not None else light.radiance.max(axis=0) > 0.0
-    ok = np.flatnonzero((p_material > 0.0) & carries)
+    ok = true_rows((p_material > 0.0) & carries)
     rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
     albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
     f_cos = albedo * p_material  # lambertian_eval's value: its pdf is the one just taken
@@ -455,7 +496,7 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     if len(shadows) == 0:
         return
     stats.shadow_rays += len(shadows)
-    visible = np.flatnonzero(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max, shadows.time))
+    visible = true_rows(~cs.shapes.occluded(shadows.origin, shadows.direction, shadows.t_max, shadows.time))
     contribution = gather(shadows.contribution, visible)
     if shadows.media_mask is not None:
         contribution *= shadow_transmittance(cs, gather(shadows.origin, visible), gather(shadows.direction, visible),
@@ -477,7 +518,7 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
         live.throughput *= att
         return direction, dead | absorbed
-    routes = [(np.flatnonzero(np.isin(table.kind, codes).take(material) if len(codes) > 1 else kind == codes[0]), kernel)
+    routes = [(true_rows(np.isin(table.kind, codes).take(material) if len(codes) > 1 else kind == codes[0]), kernel)
               for codes, kernel in kernels]
     routes = [(sel, kernel) for sel, kernel in routes if sel.size]
     if albedo is None and routes:
@@ -521,10 +562,10 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
     # field must not change type with its refill history, or MIS arithmetic
     # (and the image) would depend on the chunk size
     live.bsdf_pdf = np.where(diffuse, lambertian_pdf(surface.normal, direction), 0.0)
-    glass = np.flatnonzero(kind == table.code("dielectric"))
+    glass = true_rows(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
-        through = glass.take(np.flatnonzero(dot(gather(surface.normal, glass), gather(direction, glass)) < 0.0))
+        through = glass.take(true_rows(dot(gather(surface.normal, glass), gather(direction, glass)) < 0.0))
         index = table.refraction_index.take(surface.material_idx.take(through)).astype(np.float64)
         eta = np.where(surface.front_face.take(through), index, 1.0 / index)  # n_transmitted / n_incident
         live.eta_scale[through] *= eta * eta
@@ -534,7 +575,7 @@ def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: i
     """Stage 8: paths that have traced at least ``start_depth`` segments go on
     with probability ``q = min(max(throughput) * eta^2, 0.95)`` and divide
     their throughput by ``q``; the others end.  Returns ``absorbed``."""
-    rows = np.flatnonzero(~absorbed & (live.depth + 1 >= start_depth))
+    rows = true_rows(~absorbed & (live.depth + 1 >= start_depth))
     if rows.size == 0:
         return absorbed
     survival = np.minimum(gather(live.throughput, rows).max(axis=0) * live.eta_scale.take(rows),
@@ -542,7 +583,7 @@ def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: i
     u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
     survive = u < survival
     absorbed[rows] = ~survive  # every row was still alive: only the ended become True
-    keep = np.flatnonzero(survive)
+    keep = true_rows(survive)
     kept = rows.take(keep)
     scatter(live.throughput, kept, gather(live.throughput, kept) / survival.take(keep))
     return absorbed
@@ -557,7 +598,7 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
     live.depth += 1
     alive = ~absorbed & (live.depth < max_depth)
     if not alive.all():
-        live = live.take(np.flatnonzero(alive))
+        live = live.take(true_rows(alive))
     return live
 
 
@@ -606,10 +647,10 @@ def walk_boundaries(media, origin, direction, t_end, mask, visit, first: Hits | 
             crossing, stop = np.zeros(row.size, dtype=bool), end
         # No closed boundary reaches infinity: a piece that does is in no
         # medium, whatever a crossing missed by rounding left in the mask.
-        unbounded = row.take(np.flatnonzero(stop == np.inf))
+        unbounded = row.take(true_rows(stop == np.inf))
         mask[unbounded] = 0
         ended = visit(row, start, stop, current_medium(mask.take(row)), piece)
-        go = np.flatnonzero(crossing & ~ended)
+        go = true_rows(crossing & ~ended)
         if go.size == 0:
             return np.zeros(0, dtype=np.int64)
         surface = media.boundaries.surface(gather(o, go), gather(d, go), hits.t.take(go), hits.primitive_idx.take(go))
@@ -637,7 +678,7 @@ def boundary_hits(media, origin, direction, t_max) -> Hits:
         return media.boundaries.intersect(origin, direction, t_max)
     t = np.full(n, np.inf, dtype=origin.dtype)
     primitive = np.full(n, -1, dtype=np.int32)
-    idx = np.flatnonzero(meets)
+    idx = true_rows(meets)
     if idx.size:
         hits = media.boundaries.intersect(gather(origin, idx), gather(direction, idx),
                                           np.broadcast_to(t_max, (n,)).take(idx))
@@ -675,7 +716,7 @@ def intersect_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch):
         return cs.shapes.intersect(live.origin, live.direction, time=live.time), None
     first = first_boundaries(media, live.origin, live.direction)
     medium = current_medium(live.media_mask)
-    rows = np.flatnonzero((medium >= 0) & (first.primitive_idx >= 0))
+    rows = true_rows((medium >= 0) & (first.primitive_idx >= 0))
     if rows.size == 0:
         return cs.shapes.intersect(live.origin, live.direction, time=live.time), first
     u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), 0))[0]
@@ -685,11 +726,11 @@ def intersect_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch):
         cap = (t0 + (FLIGHT_CAP_SLACK * t0 + T_MIN)).astype(cs.dtype)
         # the first piece ends at the boundary (the walk's start less its back-off, plus t) or the hit
         capped = (cap < np.inf) & (first.t.take(rows) - FIRST_BACKOFF > cap.astype(np.float64))
-    rows, cap = rows.take(np.flatnonzero(capped)), cap.take(np.flatnonzero(capped))
+    rows, cap = rows.take(true_rows(capped)), cap.take(true_rows(capped))
     t_max = np.full(len(live), np.inf, dtype=cs.dtype)
     t_max[rows] = cap
     hits = cs.shapes.intersect(live.origin, live.direction, t_max, time=live.time)
-    missed = np.flatnonzero(hits.primitive_idx.take(rows) < 0)
+    missed = true_rows(hits.primitive_idx.take(rows) < 0)
     if missed.size:
         t = hits.t.copy()
         t[rows.take(missed)] = cap.take(missed)
@@ -722,13 +763,13 @@ def travel_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, hits, fir
 
     def free_flight(row, start, stop, medium, piece):
         ended = np.zeros(row.size, dtype=bool)
-        inside = np.flatnonzero(medium >= 0)
+        inside = true_rows(medium >= 0)
         if inside.size:
             rows = row.take(inside)
             u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), piece))[0]
             with np.errstate(divide="ignore"):  # density 0: an infinite flight, as if the medium were not there
                 t = start.take(inside) - np.log1p(-u) / media.density.take(medium.take(inside))
-            near = np.flatnonzero(t < stop.take(inside))
+            near = true_rows(t < stop.take(inside))
             t_scatter[rows.take(near)] = t.take(near)
             ended[inside.take(near)] = True
         return ended
@@ -737,13 +778,13 @@ def travel_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, hits, fir
     lost = walk_boundaries(media, live.origin, live.direction, hits.t, mask, free_flight, first)
     live.media_mask = mask
     scatters = t_scatter < np.inf
-    in_idx = np.flatnonzero(scatters)
+    in_idx = true_rows(scatters)
     in_medium = live.take(in_idx)
     point = in_medium.origin + t_scatter.take(in_idx).astype(cs.dtype) * in_medium.direction
     keep = ~scatters
     keep[lost] = False
     if not keep.all():
-        rest = np.flatnonzero(keep)
+        rest = true_rows(keep)
         live, hits = live.take(rest), Hits(hits.t.take(rest), hits.primitive_idx.take(rest))
     return live, hits, in_medium, point
 
@@ -755,7 +796,7 @@ def shadow_transmittance(cs: CompiledScene, origin, direction, t_max, mask) -> n
     fraction = np.ones(t_max.shape[0])
 
     def attenuate(row, start, stop, medium, piece):
-        inside = np.flatnonzero(medium >= 0)
+        inside = true_rows(medium >= 0)
         fraction[row.take(inside)] *= transmittance(cs.media.density.take(medium.take(inside)),
                                                     stop.take(inside) - start.take(inside))
         return np.zeros(row.size, dtype=bool)
@@ -790,7 +831,7 @@ def scatter_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, point
     live.direction = direction
     live.depth += 1
     alive = ~absorbed & (live.depth < settings.depth)
-    return (live if alive.all() else live.take(np.flatnonzero(alive))), shadows
+    return (live if alive.all() else live.take(true_rows(alive))), shadows
 
 
 def sample_lights_in_media(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch, point, albedo, absorbed,
@@ -800,7 +841,7 @@ def sample_lights_in_media(cs: CompiledScene, sampler: Sampler, emitters, live: 
     scattering function and the pdf MIS weighs it against.  The contribution
     is ``throughput * albedo / (4 pi) * radiance * w_light / p_light`` (the
     transmittance comes with the shadow ray)."""
-    rows = np.flatnonzero(~absorbed & (live.depth + 1 < max_depth))
+    rows = true_rows(~absorbed & (live.depth + 1 < max_depth))
     u_point, u_choice = light_uniforms(sampler, emitters, live, rows)
     origin = gather(point, rows)
     time = None if live.time is None else live.time.take(rows)
@@ -811,7 +852,7 @@ def sample_lights_in_media(cs: CompiledScene, sampler: Sampler, emitters, live: 
     if cs.media.sealed is not None:
         # fog in a glass ball: its light samples outside the ball are blocked by the glass
         ok &= ~sealed_in(cs.media.sealed, current_medium(live.media_mask.take(rows)), origin, direction, t_max)
-    ok = np.flatnonzero(ok)
+    ok = true_rows(ok)
     rows, pdf = rows.take(ok), light.pdf.take(ok)
     contribution = (gather(live.throughput, rows) * gather(albedo, rows) * gather(light.radiance, ok)
                     * (ISOTROPIC_PDF * mis_weight(pdf, ISOTROPIC_PDF) / pdf))
@@ -849,10 +890,10 @@ def cross_interfaces(cs: CompiledScene, live: PathBatch, surface, direction, abs
     (a glass ball full of fog) enter or leave that medium; reflected paths
     stay where they were."""
     medium = cs.media.interface_of.take(surface.primitive_idx)
-    rows = np.flatnonzero((medium >= 0) & ~absorbed)
+    rows = true_rows((medium >= 0) & ~absorbed)
     if rows.size == 0:
         return
     # the geometric normal faces the incoming ray: a transmitted direction leaves on its far side
-    through = rows.take(np.flatnonzero(dot(gather(surface.geometric_normal, rows), gather(direction, rows)) < 0.0))
+    through = rows.take(true_rows(dot(gather(surface.geometric_normal, rows), gather(direction, rows)) < 0.0))
     live.media_mask[through] = cross(live.media_mask.take(through), medium.take(through),
                                      surface.front_face.take(through))

@@ -102,6 +102,14 @@ def gather(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return a.take(idx, axis=-1)
 
 
+def true_rows(mask: np.ndarray) -> np.ndarray:
+    """Indices of the True elements of 1-D ``mask``: ``np.flatnonzero``'s
+    answer through the method, without that function's two Python wrappers
+    (~0.7 us of each call, ~17 calls a bounce: a few percent of a bounce of
+    the tail's few paths)."""
+    return mask.nonzero()[0]
+
+
 def scatter_add(acc: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
     """``acc[:, idx] += values`` for *unique* ``idx``; ``acc`` is (C, S)."""
     for row, value in zip(acc, values):

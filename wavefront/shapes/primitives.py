@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import BLOCK_ELEMENTS, escaped_at_inf
-from ..vecmath import dot
+from ..vecmath import dot, true_rows
 from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_extent
 
 # Rays tested together by brute force.  Each of the exact tests' ~40
@@ -263,7 +263,7 @@ class Primitives:
                 t = kind.t_pairs(start + j, origin.take(ray, axis=1), direction.take(ray, axis=1),
                                  None if time is None else time.take(ray))
                 # strict, as below: an earlier block keeps a tie
-                keep = np.flatnonzero(t < best_t.take(ray))
+                keep = true_rows(t < best_t.take(ray))
                 if keep.size == 0:
                     continue
                 ray, j, t = ray.take(keep), j.take(keep), t.take(keep)
@@ -273,7 +273,7 @@ class Primitives:
                     continue
                 np.minimum.at(best_t, ray, t)
                 # a ray's pairs come by primitive, so its first at its minimum has the lowest index
-                won = np.flatnonzero(t == best_t.take(ray))
+                won = true_rows(t == best_t.take(ray))
                 ray_won = ray.take(won)
                 first = won[np.concatenate(([True], ray_won[1:] != ray_won[:-1]))]
                 best_idx[ray.take(first)] = offset + start + j.take(first)
@@ -334,7 +334,7 @@ class Primitives:
                 break
             if hit.any():
                 blocked[live[hit]] = True
-                keep = np.flatnonzero(~hit)
+                keep = true_rows(~hit)
                 live, o, d, lim = live.take(keep), o.take(keep, axis=1), d.take(keep, axis=1), lim.take(keep)
                 tm = None if tm is None else tm.take(keep)
                 if rays32 is not None:
@@ -349,7 +349,7 @@ class Primitives:
         t = np.empty(idx.shape, dtype=np.result_type(origin.dtype, self.dtype))
         kind = self.kind_of(idx)
         for k, shapes in enumerate(self.kinds):
-            sel = np.flatnonzero(kind == k)
+            sel = true_rows(kind == k)
             if sel.size:
                 t[sel] = shapes.t_pairs(idx.take(sel) - self.offsets[k], origin.take(sel, axis=1),
                                         direction.take(sel, axis=1), None if time is None else time.take(sel))
@@ -371,7 +371,7 @@ class Primitives:
             coords = np.empty((2, n), dtype=origin.dtype) if uv else None
             kind = self.kind_of(idx)
             for k, shapes in enumerate(self.kinds):
-                sel = np.flatnonzero(kind == k)
+                sel = true_rows(kind == k)
                 if sel.size == 0:
                     continue
                 p, g, s, c = shapes.surface(idx.take(sel) - self.offsets[k], origin.take(sel, axis=1),
