@@ -199,6 +199,19 @@ STEP_LEVELS = 2
 #   intersection 1604/1535/1556/1514 against 1582/1527/1642/1520 ns a segment.  The exact
 #   tests' gather of those rows (~73 ns a row in the render, ~28 in isolation) is the
 #   largest single cold-miss cost left (~1.9 a segment).
+# - (session 6, second round) a float32 edge pass after the plane pass: the exact test's
+#   three edge functions (det b1, det b2, det (1 - b1 - b2)) from a per-triangle float32
+#   table in the tree's order (a leaf's triangles side by side), a slot dropped only where
+#   one is above a margin and another below minus it (conservative: the exact test accepts
+#   only where all three share det's sign).  It worked as meant: on the recorded 1M-render
+#   rays exact tests fell from 1.79 to 1.20 a ray, hits identical (property tests green),
+#   but the pass cost more than the ~0.6 saved cold row gathers: with explicit cross
+#   products (~40 NumPy calls, 64-byte rows) 1M 1971/1925 against 1768/1880 ns a segment;
+#   in Plucker form (side = a . (o x d) + d . (p x a), 80-byte rows prescaled by the
+#   margin, ~15 calls) 1940/1940/1963 against 1788/1868/1852 (np.einsum for it was worse
+#   still: ~27 ns a slot).  The pass runs in each leaf round's call on ~1-2 k slots, so
+#   its per-call overhead and its own cold gather (one row per kept slot) outweigh the
+#   exact tests it saves.
 # Where the time goes there (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
