@@ -233,6 +233,22 @@ PLANE_MIN_SINE = 2.0 ** -10
 PLANE_BUILD_CHUNK = 1 << 16  # slots per step of the planes' build (temporaries of a few MB)
 
 
+def _entry_leave(near, far, floor, bound, clip_leave):
+    """Where rays enter and leave boxes: the largest of ``near``'s three axes
+    (and ``floor``) and the smallest of ``far``'s (and ``bound``, by
+    ``clip_leave``), written in place into ``near[0]`` and ``far[0]`` (fewer
+    and smaller temporaries: a level's pairs stay in cache, see
+    TRAVERSAL_BATCH_BIG).  ``near``, ``far``: (3, ...) slab distances."""
+    entry, leave = near[0], far[0]
+    np.fmax(entry, near[1], out=entry)
+    np.fmax(entry, near[2], out=entry)
+    np.fmax(entry, floor, out=entry)
+    np.fmin(leave, far[1], out=leave)
+    np.fmin(leave, far[2], out=leave)
+    clip_leave(leave, bound, out=leave)
+    return entry, leave
+
+
 def float32_up(x) -> np.ndarray:
     """``x`` in float32, rounded towards +inf (a bound that stays a bound)."""
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(np.inf))
@@ -695,13 +711,7 @@ class BVH:
                 b = gather_minus(self.leaf_boxes32, node, shape, r[:3])
                 b *= r[3:]
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
-                entry, leave = near[0], far[0]  # in place, as in walk
-                np.fmax(entry, near[1], out=entry)
-                np.fmax(entry, near[2], out=entry)
-                np.fmax(entry, floor, out=entry)
-                np.fmin(leave, far[1], out=leave)
-                np.fmin(leave, far[2], out=leave)
-                np.minimum(leave, to_beat.take(ray), out=leave)
+                entry, leave = _entry_leave(near, far, floor, to_beat.take(ray), np.minimum)
                 slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
                 pair = slot % ray.size
                 row = node.take(pair) * self.leaf_size + slot // ray.size  # slot j of node k at k * leaf_size + j
@@ -812,15 +822,7 @@ class BVH:
                     near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
                 else:
                     near, far = t[0], t[1]
-                # in place, into each's first axis: fewer and smaller temporaries (the pairs'
-                # arrays stay in cache; see TRAVERSAL_BATCH_BIG)
-                entry, leave = near[0], far[0]
-                np.fmax(entry, near[1], out=entry)
-                np.fmax(entry, near[2], out=entry)
-                np.fmax(entry, floor, out=entry)
-                np.fmin(leave, far[1], out=leave)
-                np.fmin(leave, far[2], out=leave)
-                np.fmin(leave, to_beat.take(ray), out=leave)
+                entry, leave = _entry_leave(near, far, floor, to_beat.take(ray), np.fmin)
                 keep = (entry <= leave).ravel().nonzero()[0]  # <=: keep ties; left children first, then right
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
