@@ -589,13 +589,18 @@ def _serve(conn, scene, capacity, parent, compiled, key) -> None:
         try:
             reply = (True, run_task(task))
         except Exception as e:  # noqa: BLE001 (any error of the task is the parent's to report)
-            import traceback
-
-            reply = (False, (e, traceback.format_exc()))
+            reply = (False, (e, traceback_of(e)))
         try:
             conn.send(reply)
-        except Exception as e:  # noqa: BLE001 (an error that does not pickle)
-            conn.send((False, (RuntimeError(f"{type(e).__name__}: {first_line(e)}"), reply[1][1])))
+        except Exception as e:  # noqa: BLE001 (an error, or a result, that does not pickle)
+            where = reply[1][1] if not reply[0] else traceback_of(e)
+            conn.send((False, (RuntimeError(f"{type(e).__name__}: {first_line(e)}"), where)))
+
+
+def traceback_of(error: BaseException) -> str:
+    import traceback  # only when a task failed
+
+    return "".join(traceback.format_exception(error))
 
 
 class WorkerTraceback(Exception):
@@ -607,6 +612,8 @@ class WorkerTraceback(Exception):
 
 @dataclass
 class _WorkerProcess:
+    """One worker as the parent sees it."""
+
     process: object  # multiprocessing.Process
     conn: object  # the parent's end of its pipe
     task: int | None = None  # the number of the task it is running
