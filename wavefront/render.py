@@ -705,10 +705,13 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
         # window of them is out (running, or finished and waiting for an
         # earlier one), so the plan is never materialised and what waits to
         # be merged is bounded, however many samples the render has.
+        # A dead worker's task is run again, before any new one (lowest
+        # first): a result depends on its task alone, so the image is unchanged.
         plan = enumerate(tasks)
         window = TASKS_IN_FLIGHT * workers
-        lost = []  # (number, task) of dead workers, run again first (lowest first): a result
-        task_of, finished, merged, issued = {}, {}, 0, 0  # depends on its task alone, so the image is unchanged
+        lost = []  # (number, task) of dead workers
+        task_of, finished = {}, {}  # number -> task given out; number -> result not yet merged
+        merged = issued = 0  # tasks merged; tasks taken from the plan
         planned = False  # every task of the plan has been given out
 
         def give(worker: _WorkerProcess) -> None:
