@@ -6,6 +6,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from .vecmath import true_rows
+
 
 @dataclass(slots=True)
 class PathBatch:
@@ -46,7 +48,7 @@ class PathBatch:
         ``np.take`` rather than fancy indexing: see :func:`wavefront.vecmath.gather`.
         """
         if idx.dtype == bool:
-            idx = idx.nonzero()[0]  # np.flatnonzero without its Python wrappers
+            idx = true_rows(idx)
         # the field names and the method ``take`` (not ``np.take``, a Python
         # wrapper): a few microseconds of every call, a bounce's fixed cost
         # when only a handful of paths are left
