@@ -298,6 +298,41 @@ def test_workers_that_keep_dying_end_the_render_with_one_message(monkeypatch):
         render_module.render_scene(scene, workers=2, chunk_size=512)
 
 
+def test_a_worker_killed_on_the_renders_last_task_costs_only_that_task(tmp_path, monkeypatch):
+    """The last task is sent as its worker's last (it exits once its result
+    is sent); killed before that, the worker is a death like any other: the
+    task runs again on a new worker and the image is the undisturbed one."""
+    render_module = importlib.import_module("wavefront.render")  # the module (wavefront.render is the function)
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("the patched task reaches the workers by fork")
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=48, height=32, samples_per_pixel=4)
+    expected = render_scene(scene, workers=1, chunk_size=256).image
+    last_unit = len(render_module.UnitPlan(48, 32, 4)) - 1
+    marker, real = tmp_path / "killed", render_module.run_task
+
+    def dies_once_on_the_last_task(task):
+        if task[-1].index == last_unit and not marker.exists():
+            marker.touch()
+            os._exit(9)
+        return real(task)
+
+    monkeypatch.setattr(render_module, "run_task", dies_once_on_the_last_task)
+    result = render_scene(scene, workers=2, chunk_size=256)
+    assert marker.exists() and np.array_equal(result.image, expected)
+
+
+def test_workers_retired_for_want_of_work_are_not_deaths():
+    """Six workers, each retired as the plan runs out: more exits than
+    MAX_WORKER_DEATHS, none of them a death, and none outlives the render."""
+    render_module = importlib.import_module("wavefront.render")
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=48, samples_per_pixel=32)
+    expected = render_scene(scene, workers=1, chunk_size=256).image
+    result = render_scene(scene, workers=6, chunk_size=256)
+    assert result.stats.workers == 6 > render_module.MAX_WORKER_DEATHS
+    assert np.array_equal(result.image, expected)
+    assert not __import__("multiprocessing").active_children()
+
+
 def test_a_task_error_in_a_worker_is_raised_in_the_parent(monkeypatch):
     render_module = importlib.import_module("wavefront.render")  # the module (wavefront.render is the function)
     if "fork" not in __import__("multiprocessing").get_all_start_methods():

@@ -33,7 +33,7 @@ from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, 
 from .integrators import TRACERS
 from .memory import (  # noqa: F401 (MemoryBudgetError and the measures are part of this module's API)
     MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
-    release_free_memory)
+    release_free_memory, reserve_heap)
 from .output import OutputError, check_output_path
 from .path import TraceStats
 from .sampling import scene_key
@@ -336,6 +336,7 @@ def _init_worker(scene: Scene, capacity: int, parent: int, compiled: CompiledSce
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     tune_allocator()
+    reserve_heap(capacity * BYTES_PER_PATH)
     compiled = compiled if compiled is not None else scene.compile()
     key = key if key is not None else scene_key(scene.render.seed)
     _WORKER[:] = [_Worker(compiled, key, capacity)]
@@ -582,10 +583,13 @@ def _serve(conn, scene, capacity, parent, compiled, key) -> None:
     """A worker process: run each task the parent sends, send back its result.
 
     An error is sent back too, with its traceback, and raised in the parent.
-    None from the parent ends the worker.
+    None from the parent ends the worker, and so does a task sent as its last
+    (the render's last, or any after which the plan is empty): the worker
+    exits once its result is sent, while the parent merges it.
     """
     _init_worker(scene, capacity, parent, compiled, key)
-    while (task := conn.recv()) is not None:
+    while (message := conn.recv()) is not None:
+        task, last = message
         try:
             reply = (True, run_task(task))
         except Exception as e:  # noqa: BLE001 (any error of the task is the parent's to report)
@@ -595,6 +599,8 @@ def _serve(conn, scene, capacity, parent, compiled, key) -> None:
         except Exception as e:  # noqa: BLE001 (an error, or a result, that does not pickle)
             where = reply[1][1] if not reply[0] else traceback_of(e)
             conn.send((False, (RuntimeError(f"{type(e).__name__}: {first_line(e)}"), where)))
+        if last:
+            break
 
 
 def traceback_of(error: BaseException) -> str:
@@ -617,6 +623,9 @@ class _WorkerProcess:
     process: object  # multiprocessing.Process
     conn: object  # the parent's end of its pipe
     task: int | None = None  # the number of the task it is running
+    # Told it has no more work (None, or its task sent as the last): it exits
+    # by itself, and its exit is not a death.
+    retired: bool = False
 
 
 class _Workers:
@@ -648,6 +657,15 @@ class _Workers:
         theirs.close()
         return _WorkerProcess(process, ours)
 
+    @staticmethod
+    def retire(worker: _WorkerProcess) -> None:
+        """Tell an idle worker to exit."""
+        worker.retired = True
+        try:
+            worker.conn.send(None)
+        except OSError:
+            pass  # it died meanwhile
+
     def bury(self, worker: _WorkerProcess, replace: bool) -> None:
         """Note a dead worker's exit; start another in its place if there is work left."""
         worker.conn.close()
@@ -663,6 +681,12 @@ class _Workers:
         else:
             del self.all[i]
 
+    def reap(self, worker: _WorkerProcess) -> None:
+        """Join a retired worker that has exited, and forget it."""
+        worker.conn.close()
+        worker.process.join()
+        self.all.remove(worker)
+
     def kill(self) -> None:
         """End every worker now, whatever it is doing."""
         for worker in self.all:
@@ -676,10 +700,8 @@ class _Workers:
         for worker in self.all:
             # None, not just closing the pipe: workers forked later hold
             # copies of this end, so the worker would never see it close
-            try:
-                worker.conn.send(None)
-            except OSError:
-                pass  # it died meanwhile
+            if not worker.retired:
+                self.retire(worker)
             worker.conn.close()
         deadline = time.monotonic() + ENDING_SECONDS
         for worker in self.all:
@@ -707,33 +729,39 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
         # be merged is bounded, however many samples the render has.
         # A dead worker's task is run again, before any new one (lowest
         # first): a result depends on its task alone, so the image is unchanged.
+        # Workers with nothing left to do are retired at once, so their exits
+        # (~2 ms each: tearing down a forked address space) overlap the
+        # render's last tasks and merges instead of following them; a task
+        # given out when the plan is empty is sent as its worker's last.
         plan = enumerate(tasks)
+        upcoming = next(plan, None)  # the plan's next (number, task); None once all are given out
         window = TASKS_IN_FLIGHT * workers
         lost = []  # (number, task) of dead workers
         task_of, finished = {}, {}  # number -> task given out; number -> result not yet merged
         merged = issued = 0  # tasks merged; tasks taken from the plan
-        planned = False  # every task of the plan has been given out
 
         def give(worker: _WorkerProcess) -> None:
-            nonlocal issued, planned
+            nonlocal issued, upcoming
             if lost:
                 number, task = lost.pop(0)
-            elif planned or issued - merged >= window:
+            elif upcoming is None:
+                pool.retire(worker)
                 return
-            elif (item := next(plan, None)) is None:
-                planned = True
+            elif issued - merged >= window:
                 return
             else:
-                (number, task), issued = item, issued + 1
+                (number, task), issued = upcoming, issued + 1
+                upcoming = next(plan, None)
             task_of[number], worker.task = task, number
+            worker.retired = upcoming is None and not lost
             try:
-                worker.conn.send(task)
+                worker.conn.send((task, worker.retired))
             except OSError:
                 pass  # it has just died: its sentinel says so, and the task goes back to `lost`
 
         while True:
             for worker in pool.all:
-                if worker.task is None:
+                if worker.task is None and not worker.retired:
                     give(worker)
             if not task_of:
                 break
@@ -754,12 +782,16 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
                         finished[worker.task] = value
                         del task_of[worker.task]
                         worker.task = None
-                        give(worker)  # at once: it works while the parent merges
+                        if not worker.retired:
+                            give(worker)  # at once: it works while the parent merges
                 if worker.process.sentinel in ready or not worker.process.is_alive():
+                    if worker.retired and worker.task is None:
+                        pool.reap(worker)  # it exited as told
+                        continue
                     if worker.task is not None:
                         lost.append((worker.task, task_of[worker.task]))
                         lost.sort(key=lambda item: item[0])
-                    pool.bury(worker, replace=bool(lost) or not planned)
+                    pool.bury(worker, replace=bool(lost) or upcoming is not None)
             while merged in finished:
                 merge(finished.pop(merged))
                 merged += 1
