@@ -337,6 +337,32 @@ def test_workers_retired_for_want_of_work_are_not_deaths():
     assert not __import__("multiprocessing").active_children()
 
 
+def test_a_worker_that_exits_after_its_last_result_is_not_a_death(monkeypatch):
+    """A worker sent its last task exits once its result is sent, which may be
+    after the parent took its list of ready pipes (here: a should_stop that
+    takes a while, polled after each wait): its result is read, not lost
+    with the worker counted dead and the task run again."""
+    render_module = importlib.import_module("wavefront.render")
+    scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=48, samples_per_pixel=8)
+    expected = render_scene(scene, workers=1, chunk_size=256).image
+    deaths, real_bury = [], render_module._Workers.bury
+
+    def bury(self, worker, replace):
+        deaths.append(worker.task)
+        return real_bury(self, worker, replace)
+
+    monkeypatch.setattr(render_module._Workers, "bury", bury)
+
+    def slow_stop():
+        time.sleep(0.1)
+        return False
+
+    for _ in range(3):
+        result = render_scene(scene, workers=2, chunk_size=256, should_stop=slow_stop)
+        assert np.array_equal(result.image, expected)
+    assert deaths == []
+
+
 def test_a_task_error_in_a_worker_is_raised_in_the_parent(monkeypatch):
     render_module = importlib.import_module("wavefront.render")  # the module (wavefront.render is the function)
     if "fork" not in __import__("multiprocessing").get_all_start_methods():

@@ -770,7 +770,11 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
             if stopped():
                 raise RenderInterrupted
             for worker in list(pool.all):
-                if worker.task is not None and worker.conn in ready:
+                exited = worker.process.sentinel in ready or not worker.process.is_alive()
+                # A worker sent its last task sends its result and exits, maybe
+                # after `ready` was taken: its result is read before it is
+                # judged (at a dead worker's end of file, poll is True too)
+                if worker.task is not None and (worker.conn in ready or (exited and worker.conn.poll())):
                     try:
                         ok, value = worker.conn.recv()
                     except (EOFError, OSError):  # it died sending: its sentinel says so
@@ -784,7 +788,7 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
                         worker.task = None
                         if not worker.retired:
                             give(worker)  # at once: it works while the parent merges
-                if worker.process.sentinel in ready or not worker.process.is_alive():
+                if exited:
                     if worker.retired and worker.task is None:
                         pool.reap(worker)  # it exited as told
                         continue
