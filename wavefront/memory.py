@@ -43,25 +43,31 @@ def reserve_heap(nbytes: int) -> None:
     once, but stays mapped (the trim threshold is raised too), so the
     temporaries are carved from it and fault in 2 MiB at a time.  Nothing is
     touched here: memory is only used where the render writes, as before.
-    No-op without glibc or ``madvise``.
+
+    Only the range the heap's top grew by is advised: glibc may place pieces
+    in free holes of the heap inherited from the parent (a big mesh's
+    scene leaves some), and advising those would take in the parent's live
+    pages around them.  No-op without glibc, ``sbrk`` or ``madvise``.
     """
     lib = libc()
-    if lib is None or nbytes <= 0 or not hasattr(lib, "madvise"):
+    if lib is None or nbytes <= 0 or not all(hasattr(lib, name) for name in ("madvise", "sbrk")):
         return
     import ctypes
 
-    malloc, free, madvise = lib.malloc, lib.free, lib.madvise
+    malloc, free, madvise, sbrk = lib.malloc, lib.free, lib.madvise, lib.sbrk
     malloc.restype, malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
     free.restype, free.argtypes = None, [ctypes.c_void_p]
     madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    sbrk.restype, sbrk.argtypes = ctypes.c_void_p, [ctypes.c_ssize_t]
     pieces = []
     try:
+        top = sbrk(0)
         while len(pieces) * HEAP_PIECE < nbytes and (piece := malloc(HEAP_PIECE)):
             pieces.append(piece)
-        if pieces:
-            # consecutive pieces of the heap's top: one span, whole huge pages
-            start = -(-min(pieces) // HUGE_PAGE) * HUGE_PAGE
-            end = (max(pieces) + HEAP_PIECE) // HUGE_PAGE * HUGE_PAGE
+        grown = sbrk(0)
+        if top and grown:
+            start = -(-top // HUGE_PAGE) * HUGE_PAGE  # whole huge pages of the new range
+            end = grown // HUGE_PAGE * HUGE_PAGE
             if end > start:
                 madvise(start, end - start, MADV_HUGEPAGE)  # advice: a failure changes nothing
     finally:
