@@ -212,6 +212,34 @@ STEP_LEVELS = 2
 #   still: ~27 ns a slot).  The pass runs in each leaf round's call on ~1-2 k slots, so
 #   its per-call overhead and its own cold gather (one row per kept slot) outweigh the
 #   exact tests it saves.
+# ... and in session 7 (the recorded rays of a 1M render, ~1430-1640 ns a ray by machine load;
+# "in one process": both trees built from the same primitives, runs interleaved):
+# - gathering the exact tests' rows in sorted primitive order (monotone addresses): in
+#   isolation 3000 random 120-byte rows of 1M cost 53 ns a row, sorted 50, but the argsort
+#   and un-permuting the results made it 115;
+# - the exact rows in leaf order (a leaf's triangles side by side): the lines those gathers
+#   touch fell only from 3.66 to 3.37 a ray (a ray's exact tests rarely share a leaf), for a
+#   second 126 MB copy of the rows;
+# - leaf rows of one cache line: the slot boxes as uint8 on a grid over the leaf's box
+#   (corner and step in float32, 64 bytes instead of 192): the gather fell from 66 to 37 ms,
+#   but the uint8 -> float32 transposed copy (50 ms) and the extra multiply-add cost as much
+#   (the leaf pass 129 against 138 ms), as the 16-bit grid did in session 5;
+# - a slab per leaf (its triangles' mean normal, their extent along it) before the slot
+#   boxes: it would drop 0.35 of the 3.76 leaf pairs a ray (the terrain is rougher than a
+#   leaf is wide: median slab 0.009 thick); the plane pass over the leaf's span instead of
+#   each slot's box, before the boxes: it keeps 8.8 of 28.8 slots a ray, the boxes 5.4;
+# - more leaf rounds: 0.95 of the 3.76 leaf pairs a ray lie beyond the ray's final hit
+#   (tested in the last round, all at once).  Rounds whatever the pairs per ray, 3 to 10 of
+#   them, or only where over 1000-2500 pairs would wait: tested leaf pairs fell to 3.0 and
+#   exact tests to 1.47 a ray, but a round's ~100 NumPy calls cost as much (in one process:
+#   1504 against 1512-1528 ns; 6 and 10 rounds ~1700 and ~1790 against ~1580);
+# - each ray's own T_MIN floor instead of the batch's (camera and bounce rays share
+#   batches): exact tests 1.94 -> 1.90 a ray, no measurable gain for one more gather a level.
+# - no floor in the top's steps (their entries only decide which pairs survive): 9 % slower
+#   in one process (1751 against 1602): the floor is also the ray's start (0 at least), and
+#   without it every box behind a ray's origin along its line survives.
+# - the exact rows padded to 16 fields and line-aligned (again, in one process: +34 ns a
+#   ray), the plane table line-aligned (a leaf's 8 rows in one 128-byte pair: +10, noise).
 # Where the time goes there (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
@@ -396,6 +424,9 @@ class BVH:
         boxes = np.concatenate((tree["lo"], tree["hi"]))  # (6, K): lo xyz, hi xyz
         self.child, self.first, self.count, self.order = tree["child"], tree["first"], tree["count"], tree["order"]
         self.first_leaf_depth = tree["first_leaf_depth"]
+        # all leaves at first_leaf_depth (a median split of 2^n leaves' worth, as the 1M terrain):
+        # the walk then needs no per-pair leaf test there
+        self.complete = self.child.size == (2 << self.first_leaf_depth) - 1
         # big trees walk subtrees of SUBTREE_LEVELS levels nearest-first (tests set it on small trees)
         self.subtree_depth = self.first_leaf_depth - SUBTREE_LEVELS if self.child.size > NODE_MAJOR_NODES else None
         # each leaf's primitives in a fixed-width table, padded with unhittable NaN spheres
@@ -713,14 +744,14 @@ class BVH:
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
                 entry, leave = _entry_leave(near, far, floor, to_beat.take(ray), np.minimum)
                 slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
-                pair = slot % ray.size
-                row = node.take(pair) * self.leaf_size + slot // ray.size  # slot j of node k at k * leaf_size + j
+                j, pair = np.divmod(slot, ray.size)  # one pass for both (a % and a // were two)
+                row = node.take(pair) * self.leaf_size + j  # slot j of node k at k * leaf_size + j
                 if self.leaf_planes32 is not None:
                     # the plane pass: keep the slots whose ray crosses (to within the margin)
                     # its triangle's plane between entering and leaving its box
                     plane = self.leaf_planes32.take(row, axis=0)  # (S, 4): n / m, c / m
                     r = ray.take(pair)
-                    o32 = rays.take(r, axis=1, mode="wrap")
+                    o32 = rays[:3].take(r, axis=1, mode="wrap")  # the origins only
                     dr = d32.take(r, axis=1, mode="wrap")
                     at_origin = plane[:, 0] * o32[0]
                     at_origin += plane[:, 1] * o32[1]
@@ -844,6 +875,9 @@ class BVH:
                 depth += 1
                 if depth < self.first_leaf_depth:
                     inner = None
+                elif depth == self.first_leaf_depth and self.complete:  # every pair is a leaf's
+                    test_leaves(ray, node % k if self.octants > 1 else node, entry.ravel().take(keep), rays_walking)
+                    ray = node = inner = ray[:0]
                 else:
                     is_leaf = self.octant_is_leaf.take(node)
                     leaf = is_leaf.nonzero()[0]
