@@ -114,6 +114,9 @@ FLIGHT_CAP_SLACK = 1e-6
 # A bounce's shadow rays join the next bounce's nearest-hit query (see
 # trace_paths) while the two together are at most this many rays.
 RIDING_RAYS = 2048
+# A bounce of at most this many paths draws their light, bounce and roulette
+# uniforms together, in one call (see draw_together).
+TOGETHER_PATHS = 2048
 
 
 @dataclass
@@ -242,19 +245,20 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 in_medium, shadows = scatter_in_media(cs, sampler, in_medium, point, emitters)
         live, surface, gone = escaped(cs, live, hits, radiance)
         if len(live):
+            drawn = draw_together(cs, sampler, live, emitters, roulette)
             absorbed = emitted(cs, live, surface, radiance, emitters, gone)
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
-                                                                    absorbed, settings.depth, albedo))
+                                                                    absorbed, settings.depth, albedo, drawn))
         if len(live):
-            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo)
+            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn)
             if diffuse is not None:
                 record_sampling(cs, live, surface, diffuse, direction)
             if roulette is not None:
-                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth)
+                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, drawn)
             if cs.media is not None:
                 cross_interfaces(cs, live, surface, direction, absorbed)
             live = advance(live, surface, direction, absorbed, settings.depth)
@@ -353,6 +357,42 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     return live, surface, gone
 
 
+@dataclass(slots=True)
+class DrawnUniforms:
+    """A bounce's uniforms, drawn ahead for every path of a small batch (see
+    :func:`draw_together`); the stages take their rows' columns."""
+
+    bounce: np.ndarray  # (2, N) at the render's precision: the material's sample
+    light_point: np.ndarray | None  # (2, N) float64: the point on the light (None: no light sampling)
+    light_choice: np.ndarray | None  # (2, N) float64: which light (first), roulette (second); None: neither
+
+
+def draw_together(cs: CompiledScene, sampler: Sampler, live: PathBatch, emitters, roulette) -> DrawnUniforms | None:
+    """Every uniform a bounce of at most ``TOGETHER_PATHS`` paths may draw
+    (None for a bigger one: each stage draws its own rows' then).
+
+    The tail after roulette is ~20 bounces of a few hundred paths or fewer,
+    where a draw costs what its ~40 NumPy calls cost whatever the paths: the
+    three pairs in one call (:meth:`Sampler.pairs_together`), each path's
+    numbers the same as drawn separately, bit for bit.  Pairs a stage then
+    does not read (a specular vertex's light point, roulette's before its
+    depth) cost a few columns of that one call."""
+    if len(live) > TOGETHER_PATHS:
+        return None
+    depth = live.depth
+    pairs, dtypes = [bounce_dimension(depth)], [cs.dtype]
+    if emitters is not None:
+        pairs.append(light_point_dimension(depth))
+        dtypes.append(np.float64)
+    choice = roulette is not None or (emitters is not None and len(emitters) > 1)
+    if choice:
+        pairs.append(light_choice_dimension(depth))
+        dtypes.append(np.float64)
+    u = sampler.pairs_together(live.state, pairs, dtypes)
+    return DrawnUniforms(bounce=u[0], light_point=u[1] if emitters is not None else None,
+                         light_choice=u[-1] if choice else None)
+
+
 def surface_albedo(cs: CompiledScene, surface):
     """The hits' textured albedo ``(3, N)`` (one texture evaluation per
     bounce, shared by light sampling and scattering), or None when no albedo
@@ -438,7 +478,7 @@ def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
 
 
 def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch, surface, diffuse, absorbed,
-                  max_depth: int, albedo=None) -> ShadowBatch:
+                  max_depth: int, albedo=None, drawn: DrawnUniforms | None = None) -> ShadowBatch:
     """Stage 5: one light sample per diffuse vertex, as a shadow ray.
 
     Only paths allowed another segment take one (the shadow ray is that
@@ -447,7 +487,7 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     ``throughput * albedo / pi * cos * radiance * w_light / p_light``.
     """
     rows = true_rows(diffuse & ~absorbed & (live.depth + 1 < max_depth))
-    u_point, u_choice = light_uniforms(sampler, emitters, live, rows)
+    u_point, u_choice = light_uniforms(sampler, emitters, live, rows, drawn)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(gather(surface.point, rows), u_choice, u_point, time)
     normal = gather(surface.normal, rows)
@@ -476,13 +516,16 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
                        media_mask=None if live.media_mask is None else live.media_mask.take(rows))
 
 
-def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows):
+def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows, drawn: DrawnUniforms | None = None):
     """The uniforms of the light samples of paths ``rows``: the point on the
     emitter ``(2, R)``, and those choosing the emitter, or None with one
     emitter (nothing to choose: not drawing the pair changes no other number,
-    as a pinhole camera's lens pair).  The rows' states are gathered here and
-    dropped on return: light sampling holds the most memory of any stage,
-    and a fresh worker faults in every page of its peak."""
+    as a pinhole camera's lens pair); the rows' columns of ``drawn``'s if
+    given.  The rows' states are gathered here and dropped on return: light
+    sampling holds the most memory of any stage, and a fresh worker faults
+    in every page of its peak."""
+    if drawn is not None:
+        return gather(drawn.light_point, rows), None if len(emitters) == 1 else drawn.light_choice[0].take(rows)
     state, depth = live.state.take(rows), live.depth.take(rows)
     u_point = sampler.pairs(state, light_point_dimension(depth))
     if len(emitters) == 1:
@@ -504,14 +547,16 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     scatter_add(radiance, shadows.slot.take(visible), contribution)
 
 
-def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None):
+def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None,
+                 drawn: DrawnUniforms | None = None):
     """Stage 7: hits are routed by material kind, one kernel per kind present;
     throughput is multiplied by the attenuation (``albedo (3, N)``: the hits'
-    textured albedo, if any).  Returns the new directions and the ``absorbed`` mask."""
+    textured albedo, if any; ``drawn``: the uniforms, if drawn already).
+    Returns the new directions and the ``absorbed`` mask."""
     table = cs.materials
     material, normal, front_face = surface.material_idx, surface.normal, surface.front_face
     kind = table.kind.take(material)
-    u = sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
+    u = drawn.bounce if drawn is not None else sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     if len(kernels) == 1 and not (table.kind == table.code("emissive")).any():
         # a lone kind and no emitters: no routing, no gathers (absorbed holds
         # only the escaped paths left in the batch, if any)
@@ -571,16 +616,21 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
         live.eta_scale[through] *= eta * eta
 
 
-def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
+def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: int,
+                     drawn: DrawnUniforms | None = None) -> np.ndarray:
     """Stage 8: paths that have traced at least ``start_depth`` segments go on
     with probability ``q = min(max(throughput) * eta^2, 0.95)`` and divide
-    their throughput by ``q``; the others end.  Returns ``absorbed``."""
+    their throughput by ``q``; the others end (``drawn``: the uniforms, if
+    drawn already).  Returns ``absorbed``."""
     rows = true_rows(~absorbed & (live.depth + 1 >= start_depth))
     if rows.size == 0:
         return absorbed
     survival = np.minimum(gather(live.throughput, rows).max(axis=0) * live.eta_scale.take(rows),
                           ROULETTE_MAX_SURVIVAL)
-    u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
+    if drawn is not None:
+        u = drawn.light_choice[1].take(rows)
+    else:
+        u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
     survive = u < survival
     absorbed[rows] = ~survive  # every row was still alive: only the ended become True
     keep = true_rows(survive)
