@@ -246,3 +246,21 @@ def test_escaped_paths_left_in_the_batch_change_no_pixel(monkeypatch, name, over
         monkeypatch.setattr(path_module, "ESCAPED_KEPT_FRACTION", fraction)
         images.append(render(scene, workers=1))
     np.testing.assert_array_equal(images[0], images[1])
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("cornell_spheres.yaml", {}),  # one lamp, three kernels, roulette
+    ("simple_light.yaml", {}),  # two emitters: light choice and roulette share a pair
+    ("three_spheres.yaml", {"sampler": "independent"}),  # no emitter, the independent sampler
+])
+def test_uniforms_drawn_together_change_no_pixel(monkeypatch, name, overrides):
+    """A small bounce's uniforms drawn in one call (path.draw_together) give
+    the image of each stage drawing its own, bit for bit: forced for every
+    bounce and never."""
+    from wavefront import path as path_module
+    scene = load_scene(SCENES / name).with_overrides(width=40, height=30, samples_per_pixel=3, **overrides)
+    images = []
+    for paths in (0, 1 << 30):
+        monkeypatch.setattr(path_module, "TOGETHER_PATHS", paths)
+        images.append(render(scene, workers=1))
+    np.testing.assert_array_equal(images[0], images[1])

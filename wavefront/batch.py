@@ -28,8 +28,9 @@ class PathBatch:
     # What multiple importance sampling and roulette need from the vertex the
     # path last left: the solid-angle pdf of the direction it sampled there,
     # whether that sampling was a delta (mirror, glass, camera: its emission
-    # hits count in full), and eta^2 accumulated over refractions.  None in
-    # integrators that need none of it (Whitted).
+    # hits count in full; the pdf is then not read, and may hold anything),
+    # and eta^2 accumulated over refractions.  None in integrators that need
+    # none of it (Whitted).
     bsdf_pdf: np.ndarray | None = None  # (N,) float64
     specular: np.ndarray | None = None  # (N,) bool
     eta_scale: np.ndarray | None = None  # (N,) float64
