@@ -56,6 +56,22 @@ class PathBatch:
         return PathBatch(*[None if (a := getattr(self, name)) is None else a.take(idx, axis=-1)
                            for name in _PATH_FIELDS])
 
+    def fill(self, holes: np.ndarray, movers: np.ndarray, size: int) -> PathBatch:
+        """The batch cut to its first ``size`` paths after the paths at
+        ``movers`` (all at or past ``size``) have moved into the rows
+        ``holes`` (below ``size``, as many): in place, so every field is
+        then a view of its first ``size`` columns, and the order of the
+        paths changes.  Where few paths ended, this copies their few rows
+        where :meth:`take` copies every row."""
+        for name in _PATH_FIELDS:
+            a = getattr(self, name)
+            if a is None:
+                continue
+            for row in (a if a.ndim == 2 else (a,)):  # a (3, N) field row by row: see vecmath.scatter
+                row[holes] = row.take(movers)
+            setattr(self, name, a[..., :size])
+        return self
+
     @staticmethod
     def concat(a: PathBatch, b: PathBatch) -> PathBatch:
         if len(a) == 0:
