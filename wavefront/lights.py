@@ -216,8 +216,12 @@ class EmitterTable:
         u = u.astype(np.float64, copy=False)
         n = ref.shape[1]
         # one emitter (RTOW's scenes, cornell_spheres): every sample chooses
-        # it, and the caller need not draw ``u_choice`` (None)
-        e = np.zeros(n, dtype=np.intp) if len(self) == 1 else self.choose(u_choice)
+        # it, and the caller need not draw ``u_choice`` (None); a still,
+        # untextured one is read through its broadcast columns only (e None)
+        if len(self) > 1:
+            e = self.choose(u_choice)
+        else:
+            e = None if self.velocity is None and self.texture is None else np.zeros(n, dtype=np.intp)
         samplers = ((SPHERE, self._sample_spheres), (QUAD, self._sample_quads), (TRIANGLE, self._sample_triangles))
         kind = None
         if self.one_kind >= 0:
@@ -385,7 +389,10 @@ def _cone(center, radius, reference):
     sin2_max = radius / clamped
     sin2_max *= sin2_max
     small = sin2_max < SMALL_CONE_SIN2
-    one_minus_cos_max = 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max))
+    cos2_max = 1.0 - sin2_max
+    if inside.size:  # only a reference inside has sin^2 > 1 (outside, radius / distance rounds to at most 1)
+        np.maximum(0.0, cos2_max, out=cos2_max)
+    one_minus_cos_max = 1.0 - np.sqrt(cos2_max, out=cos2_max)
     if small.any():  # a lamp 40 radii away: the series only where it is needed, row by row
         small = true_rows(small)
         one_minus_cos_max[small] = 0.5 * sin2_max.take(small)
@@ -452,17 +459,20 @@ def sample_sphere(center, radius, reference, u):
     np.maximum(sin_alpha, 0.0, out=sin_alpha)
     np.sqrt(sin_alpha, out=sin_alpha)
     cos_phi, sin_phi = cos_sin_2pi(u[1])  # two float64 libm calls per sample cost ~15 % of a lamp's sample
+    # The outward normal at the sampled point faces the reference point: -w
+    # in the cone's frame, built row by row into one array (no (3, N)
+    # temporaries).  -w's three terms are negated as they are made (a
+    # negation is exact and rounding is symmetric: the numbers of negating
+    # w, one pass over the samples instead of three).
+    np.negative(sin_alpha, out=sin_alpha)
     along_x, along_y = np.multiply(sin_alpha, cos_phi, out=cos_phi), np.multiply(sin_alpha, sin_phi, out=sin_phi)
     del sin_alpha
-    # the outward normal at the sampled point faces the reference point: -w in
-    # the cone's frame, built row by row into one array (no (3, N) temporaries)
     normal = np.empty(axis.shape)
     for row, ((xi, yi), zi) in enumerate(zip(_frame(axis), axis)):
         out = normal[row]
         np.multiply(along_x, xi, out=out)
         out += along_y * yi
-        out += cos_alpha * zi
-    np.negative(normal, out=normal)
+        out -= cos_alpha * zi
     pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
     if inside.size:
         outward = random_unit_vector(u[0].take(inside), u[1].take(inside))
