@@ -250,7 +250,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         live, surface, gone = escaped(cs, live, hits, radiance)
         if len(live):
             drawn = draw_together(cs, sampler, live, emitters, roulette)
-            kind = cs.materials.kind.take(surface.material_idx)  # each hit's material kind, for stages 4, 7 and 8
+            kind = cs.materials.kind.take(surface.material_idx)  # each hit's material kind, taken once a bounce
             absorbed = emitted(cs, live, surface, radiance, emitters, gone, kind)
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
@@ -618,7 +618,7 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
     # (and the image) would depend on the chunk size.  Every row's, specular
     # or not: emission_weight reads it only after a diffuse vertex, and a
     # where zeroing the others cost ~50 us of a 32 Ki path bounce (its
-    # random mask mispredicts), 1 % of the bounce.
+    # random mask mispredicts), ~0.5 % of the bounce.
     live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
     glass = true_rows(kind == table.code("dielectric"))
     if glass.size:
