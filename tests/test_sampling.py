@@ -541,6 +541,25 @@ def test_pairs_drawn_together_are_those_drawn_apart(kind, n):
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("kind", SAMPLERS)
+@pytest.mark.parametrize("spp", [1, 12, 1 << 17])
+def test_one_uniform_of_a_pair_is_that_of_the_pair(kind, spp):
+    """Sampler.uniform (one dimension of a pair, what roulette reads) gives
+    the pair's numbers bit for bit, in either precision, for pairs per path
+    or one for all."""
+    sampler = Sampler(scene_key(6), spp, kind)
+    rng = np.random.default_rng(6)
+    pixel = rng.integers(0, 10**6, 700)
+    state = sampler.start(pixel, (pixel * spp + rng.integers(0, spp, 700)).astype(np.uint64))
+    depth = rng.integers(0, 60, 700).astype(np.int32)
+    for pair in (light_choice_dimension(depth), np.full(700, 9), 4):
+        for dimension in (0, 1):
+            for dtype in (np.float64, np.float32):
+                got, want = sampler.uniform(state, pair, dimension, dtype), sampler.pairs(state, pair, dtype)[dimension]
+                assert got.dtype == want.dtype and got.shape == (700,)
+                np.testing.assert_array_equal(got, want)
+
+
 def test_independent_sampler_is_the_hash_of_the_sample_id():
     """sampler: independent draws exactly what path_state/uniform_pairs give
     (the numbers every image before the sobol sampler was made of)."""

@@ -155,7 +155,7 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
-    time = sampler.pairs(state, TIME_PAIR)[0] if cs.shapes.moving else None
+    time = sampler.uniform(state, TIME_PAIR, 0) if cs.shapes.moving else None
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -536,7 +536,7 @@ def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows, drawn: Dra
     u_point = sampler.pairs(state, light_point_dimension(depth))
     if len(emitters) == 1:
         return u_point, None
-    return u_point, sampler.pairs(state, light_choice_dimension(depth))[0]
+    return u_point, sampler.uniform(state, light_choice_dimension(depth), 0)
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
@@ -643,7 +643,7 @@ def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: i
     if drawn is not None:
         u = drawn.light_choice[1].take(rows)
     else:
-        u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
+        u = sampler.uniform(live.state.take(rows), light_choice_dimension(live.depth.take(rows)), 1)
     survive = u < survival
     absorbed[rows] = ~survive  # every row was still alive: only the ended become True
     keep = true_rows(survive)
@@ -792,7 +792,7 @@ def intersect_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch):
     rows = true_rows((medium >= 0) & (first.primitive_idx >= 0))
     if rows.size == 0:
         return cs.shapes.intersect(live.origin, live.direction, time=live.time), first
-    u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), 0))[0]
+    u = sampler.uniform(live.state.take(rows), medium_dimension(live.depth.take(rows), 0), 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         t0 = -np.log1p(-u) / media.density.take(medium.take(rows))
         # the cap: past t0 by far more than rounding to the render's precision
@@ -839,7 +839,7 @@ def travel_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, hits, fir
         inside = true_rows(medium >= 0)
         if inside.size:
             rows = row.take(inside)
-            u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), piece))[0]
+            u = sampler.uniform(live.state.take(rows), medium_dimension(live.depth.take(rows), piece), 0)
             with np.errstate(divide="ignore"):  # density 0: an infinite flight, as if the medium were not there
                 t = start.take(inside) - np.log1p(-u) / media.density.take(medium.take(inside))
             near = true_rows(t < stop.take(inside))
