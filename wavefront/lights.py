@@ -401,18 +401,26 @@ def _cone(center, radius, reference):
     return axis, inside, sin2_max, one_minus_cos_max, small
 
 
-def _frame(z):
-    """Two unit vectors ``x, y`` completing unit ``z (3, N)`` to an
-    orthonormal basis (Duff et al. 2017, "Building an Orthonormal Basis,
-    Revisited": branch-free), yielded row by row as ``(x[i], y[i])``: the
-    caller combines each row before the next is made, so at most two rows
-    are held (the basis whole was 5 of sample_sphere's ~30 (N,) arrays)."""
+def _negated_frame(z):
+    """``-x, -y`` for the two unit vectors ``x, y`` completing unit ``z (3,
+    N)`` to an orthonormal basis (Duff et al. 2017, "Building an
+    Orthonormal Basis, Revisited": branch-free), yielded row by row as
+    ``(-x[i], -y[i])``: the caller combines each row before the next is
+    made, so at most two rows are held (the basis whole was 5 of
+    sample_sphere's ~30 (N,) arrays).
+
+    Negated because sample_sphere wants ``-w``; each is Duff's expression
+    negated exactly (``na = 1 / (sign + z2)`` is ``-a``, and ``x[2] = -sign
+    z0``, ``y[2] = -z1`` come negated for free), so ``-x[i]`` here is
+    bit for bit the negation of Duff's ``x[i]``, four passes fewer than
+    negating the normal or the sines."""
     sign = np.copysign(1.0, z[2])
-    a = -1.0 / (sign + z[2])
-    b = z[0] * z[1] * a
-    yield 1.0 + sign * z[0] * z[0] * a, b
-    yield sign * b, sign + z[1] * z[1] * a
-    yield -sign * z[0], -z[1]
+    na = 1.0 / (sign + z[2])
+    nb = z[0] * z[1] * na
+    s0 = sign * z[0]
+    yield s0 * z[0] * na - 1.0, nb
+    yield sign * nb, z[1] * z[1] * na - sign
+    yield s0, z[1]
 
 
 def sample_sphere(center, radius, reference, u):
@@ -461,14 +469,13 @@ def sample_sphere(center, radius, reference, u):
     cos_phi, sin_phi = cos_sin_2pi(u[1])  # two float64 libm calls per sample cost ~15 % of a lamp's sample
     # The outward normal at the sampled point faces the reference point: -w
     # in the cone's frame, built row by row into one array (no (3, N)
-    # temporaries).  -w's three terms are negated as they are made (a
-    # negation is exact and rounding is symmetric: the numbers of negating
-    # w, one pass over the samples instead of three).
-    np.negative(sin_alpha, out=sin_alpha)
+    # temporaries).  -w = along_x (-x) + along_y (-y) - cos_alpha z, the
+    # numbers of negating w (negation is exact and rounding symmetric)
+    # without a pass to negate it.
     along_x, along_y = np.multiply(sin_alpha, cos_phi, out=cos_phi), np.multiply(sin_alpha, sin_phi, out=sin_phi)
     del sin_alpha
     normal = np.empty(axis.shape)
-    for row, ((xi, yi), zi) in enumerate(zip(_frame(axis), axis)):
+    for row, ((xi, yi), zi) in enumerate(zip(_negated_frame(axis), axis)):
         out = normal[row]
         np.multiply(along_x, xi, out=out)
         out += along_y * yi
