@@ -28,8 +28,8 @@ from wavefront import (Camera, Emissive, Lambertian, Quad, RenderSettings, Scene
                        render)
 from wavefront.materials import scatter_lambertian
 from wavefront.sampling import (LIGHT_PAIRS, MEDIUM_PAIRS, SAMPLERS, TIME_PAIR, Sampler, _hash32, _net_table,
-                                bounce_dimension, light_choice_dimension, light_point_dimension,
-                                _owen_mix, _reverse_bits_int, _sobol_dimension_1_columns, _to_unit, mix64,
+                                _owen_mix, _reverse_bits_int, _sobol_dimension_1_columns, _to_unit, bounce_dimension,
+                                light_choice_dimension, light_point_dimension, mix64,
                                 owen_premix, owen_scramble_reversed, pair_seeds, path_state, pixel_seeds,
                                 random_in_unit_disk, random_unit_vector, reverse_bits, scene_key, shuffle_index,
                                 sobol_points, sobol_reversed, uniform_pairs)
