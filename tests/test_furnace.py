@@ -53,7 +53,7 @@ def test_negative_control_biased_roulette_fails_the_furnace(monkeypatch):
     """Roulette that forgets to divide by the survival probability darkens the furnace."""
     import wavefront.path
 
-    def biased(sampler, live, absorbed, start_depth):
+    def biased(sampler, live, absorbed, start_depth, drawn=None):  # draws its own uniforms: the same numbers
         rows = np.flatnonzero(~absorbed & (live.depth + 1 >= start_depth))
         u = sampler.pairs(live.state.take(rows), wavefront.path.light_choice_dimension(live.depth.take(rows)))[1]
         absorbed[rows[u >= 0.95]] = True

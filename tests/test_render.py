@@ -246,3 +246,64 @@ def test_escaped_paths_left_in_the_batch_change_no_pixel(monkeypatch, name, over
         monkeypatch.setattr(path_module, "ESCAPED_KEPT_FRACTION", fraction)
         images.append(render(scene, workers=1))
     np.testing.assert_array_equal(images[0], images[1])
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("cornell_spheres.yaml", {}),  # one lamp, three kernels, roulette
+    ("simple_light.yaml", {}),  # two emitters: light choice and roulette share a pair
+    ("three_spheres.yaml", {"sampler": "independent"}),  # no emitter, the independent sampler
+])
+def test_uniforms_drawn_together_change_no_pixel(monkeypatch, name, overrides):
+    """A small bounce's uniforms drawn in one call (path.draw_together) give
+    the image of each stage drawing its own, bit for bit: forced for every
+    bounce and never."""
+    from wavefront import path as path_module
+    scene = load_scene(SCENES / name).with_overrides(width=40, height=30, samples_per_pixel=3, **overrides)
+    images = []
+    for paths in (0, 1 << 30):
+        monkeypatch.setattr(path_module, "TOGETHER_PATHS", paths)
+        images.append(render(scene, workers=1))
+    np.testing.assert_array_equal(images[0], images[1])
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("cornell_spheres.yaml", {}),  # ~1.3 % of the paths end a bounce before roulette
+    ("cornell_smoke.yaml", {}),  # media: paths scattered in fog join the batch
+    ("bouncing_spheres.yaml", {}),  # motion blur: each path's time moves with it
+    ("three_spheres.yaml", {"sampler": "independent"}),
+])
+def test_survivors_moved_into_ended_rows_change_no_pixel(monkeypatch, name, overrides):
+    """Survivors moved into the rows of ended paths (path.advance, reordering
+    the batch) give the image of compacting every field, bit for bit:
+    forced for every bounce and never."""
+    from wavefront import path as path_module
+    scene = load_scene(SCENES / name).with_overrides(width=40, height=30, samples_per_pixel=3, **overrides)
+    images = []
+    for fraction in (0.0, 1.0):
+        monkeypatch.setattr(path_module, "FILLED_FRACTION", fraction)
+        images.append(render(scene, workers=1))
+    np.testing.assert_array_equal(images[0], images[1])
+
+
+def test_fill_moves_the_last_paths_into_the_holes():
+    """PathBatch.fill: every field of the paths kept, in the order fill
+    promises (each hole takes its mover); (3, N) fields contiguous (take
+    would copy a strided view whole before each gather)."""
+    from wavefront.batch import PathBatch
+    n = 10
+    batch = PathBatch(origin=np.arange(3.0 * n).reshape(3, n), direction=np.arange(3.0 * n).reshape(3, n) + 100,
+                      throughput=np.arange(3.0 * n).reshape(3, n) + 200, slot=np.arange(n), state=np.arange(n, dtype=np.uint64),
+                      depth=np.arange(n, dtype=np.int32), bsdf_pdf=np.arange(n) * 0.5, specular=np.arange(n) % 2 == 0,
+                      eta_scale=np.arange(n) + 0.25)
+    alive = np.ones(n, dtype=bool)
+    alive[[1, 4, 8]] = False  # as path.advance picks them: holes 1 and 4 take movers 7 and 9 (8 ended)
+    size = n - 3
+    holes, movers = np.flatnonzero(~alive[:size]), np.flatnonzero(alive[size:]) + size
+    np.testing.assert_array_equal(movers, [7, 9])
+    want = batch.take(np.array([0, 7, 2, 3, 9, 5, 6]))
+    got = batch.fill(holes, movers, size)
+    assert len(got) == 7
+    for name in ("origin", "direction", "throughput", "slot", "state", "depth", "bsdf_pdf", "specular", "eta_scale"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    assert got.origin.flags.c_contiguous and got.throughput.flags.c_contiguous
+    assert got.time is None and got.media_mask is None

@@ -28,7 +28,8 @@ from wavefront import (Camera, Emissive, Lambertian, Quad, RenderSettings, Scene
                        render)
 from wavefront.materials import scatter_lambertian
 from wavefront.sampling import (LIGHT_PAIRS, MEDIUM_PAIRS, SAMPLERS, TIME_PAIR, Sampler, _hash32, _net_table,
-                                _owen_mix, _reverse_bits_int, _sobol_dimension_1_columns, _to_unit, mix64,
+                                _owen_mix, _reverse_bits_int, _sobol_dimension_1_columns, _to_unit, bounce_dimension,
+                                light_choice_dimension, light_point_dimension, mix64,
                                 owen_premix, owen_scramble_reversed, pair_seeds, path_state, pixel_seeds,
                                 random_in_unit_disk, random_unit_vector, reverse_bits, scene_key, shuffle_index,
                                 sobol_points, sobol_reversed, uniform_pairs)
@@ -517,6 +518,46 @@ def test_sobol_pair_as_int_or_per_path_gives_the_same_numbers(pair):
     sampler = Sampler(scene_key(3), 10, "sobol")
     state = sampler.start(np.arange(1000) // 10, np.arange(1000, dtype=np.uint64))
     np.testing.assert_array_equal(sampler.pairs(state, pair), sampler.pairs(state, np.full(1000, pair)))
+
+
+@pytest.mark.parametrize("kind", SAMPLERS)
+@pytest.mark.parametrize("n", [0, 1, 700])
+def test_pairs_drawn_together_are_those_drawn_apart(kind, n):
+    """Sampler.pairs_together (a small bounce's light, bounce and roulette
+    pairs in one call) gives each pair's numbers bit for bit, each in its own
+    precision, for pairs per path or one for all."""
+    sampler = Sampler(scene_key(5), 12, kind)
+    rng = np.random.default_rng(5)
+    pixel = rng.integers(0, 10**6, n)
+    state = sampler.start(pixel, (pixel * 12 + rng.integers(0, 12, n)).astype(np.uint64))
+    depth = rng.integers(0, 60, n).astype(np.int32)
+    pairs = [bounce_dimension(depth), light_point_dimension(depth), light_choice_dimension(depth), 3, np.full(n, 9)]
+    dtypes = [np.float32, np.float64, np.float64, np.float32, np.float64]
+    together = sampler.pairs_together(state, pairs, dtypes)
+    assert len(together) == len(pairs)
+    for got, pair, dtype in zip(together, pairs, dtypes):
+        want = sampler.pairs(state, pair, dtype)
+        assert got.dtype == want.dtype and got.shape == (2, n)
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("kind", SAMPLERS)
+@pytest.mark.parametrize("spp", [1, 12, 1 << 17])
+def test_one_uniform_of_a_pair_is_that_of_the_pair(kind, spp):
+    """Sampler.uniform (one dimension of a pair, what roulette reads) gives
+    the pair's numbers bit for bit, in either precision, for pairs per path
+    or one for all."""
+    sampler = Sampler(scene_key(6), spp, kind)
+    rng = np.random.default_rng(6)
+    pixel = rng.integers(0, 10**6, 700)
+    state = sampler.start(pixel, (pixel * spp + rng.integers(0, spp, 700)).astype(np.uint64))
+    depth = rng.integers(0, 60, 700).astype(np.int32)
+    for pair in (light_choice_dimension(depth), np.full(700, 9), 4):
+        for dimension in (0, 1):
+            for dtype in (np.float64, np.float32):
+                got, want = sampler.uniform(state, pair, dimension, dtype), sampler.pairs(state, pair, dtype)[dimension]
+                assert got.dtype == want.dtype and got.shape == (700,)
+                np.testing.assert_array_equal(got, want)
 
 
 def test_independent_sampler_is_the_hash_of_the_sample_id():

@@ -28,8 +28,9 @@ class PathBatch:
     # What multiple importance sampling and roulette need from the vertex the
     # path last left: the solid-angle pdf of the direction it sampled there,
     # whether that sampling was a delta (mirror, glass, camera: its emission
-    # hits count in full), and eta^2 accumulated over refractions.  None in
-    # integrators that need none of it (Whitted).
+    # hits count in full; the pdf is then not read, and may hold anything),
+    # and eta^2 accumulated over refractions.  None in integrators that need
+    # none of it (Whitted).
     bsdf_pdf: np.ndarray | None = None  # (N,) float64
     specular: np.ndarray | None = None  # (N,) bool
     eta_scale: np.ndarray | None = None  # (N,) float64
@@ -54,6 +55,29 @@ class PathBatch:
         # when only a handful of paths are left
         return PathBatch(*[None if (a := getattr(self, name)) is None else a.take(idx, axis=-1)
                            for name in _PATH_FIELDS])
+
+    def fill(self, holes: np.ndarray, movers: np.ndarray, size: int) -> PathBatch:
+        """The batch cut to its first ``size`` paths after the paths at
+        ``movers`` (all at or past ``size``) have moved into the rows
+        ``holes`` (below ``size``, as many), in place: the order of the
+        paths changes.  Where few paths ended, this copies their few rows
+        where :meth:`take` gathers every row (56 us against 324 for 32 Ki
+        paths, 1.3 % ended).
+
+        A (N,) field becomes a view of its first ``size`` elements; a
+        (3, N) field a contiguous copy of its first ``size`` columns (100 us
+        of the three): ``take`` copies a non-contiguous array whole before
+        gathering from it (63 us against 39 for 26 Ki of 32 Ki columns, and
+        as much for the few columns of escaped paths).
+        """
+        for name in _PATH_FIELDS:
+            a = getattr(self, name)
+            if a is None:
+                continue
+            for row in (a if a.ndim == 2 else (a,)):  # a (3, N) field row by row: see vecmath.scatter
+                row[holes] = row.take(movers)
+            setattr(self, name, a[:size] if a.ndim == 1 else np.ascontiguousarray(a[:, :size]))
+        return self
 
     @staticmethod
     def concat(a: PathBatch, b: PathBatch) -> PathBatch:

@@ -216,8 +216,12 @@ class EmitterTable:
         u = u.astype(np.float64, copy=False)
         n = ref.shape[1]
         # one emitter (RTOW's scenes, cornell_spheres): every sample chooses
-        # it, and the caller need not draw ``u_choice`` (None)
-        e = np.zeros(n, dtype=np.intp) if len(self) == 1 else self.choose(u_choice)
+        # it, and the caller need not draw ``u_choice`` (None); a still,
+        # untextured one is read through its broadcast columns only (e None)
+        if len(self) > 1:
+            e = self.choose(u_choice)
+        else:
+            e = None if self.velocity is None and self.texture is None else np.zeros(n, dtype=np.intp)
         samplers = ((SPHERE, self._sample_spheres), (QUAD, self._sample_quads), (TRIANGLE, self._sample_triangles))
         kind = None
         if self.one_kind >= 0:
@@ -385,7 +389,10 @@ def _cone(center, radius, reference):
     sin2_max = radius / clamped
     sin2_max *= sin2_max
     small = sin2_max < SMALL_CONE_SIN2
-    one_minus_cos_max = 1.0 - np.sqrt(np.maximum(0.0, 1.0 - sin2_max))
+    cos2_max = 1.0 - sin2_max
+    if inside.size:  # only a reference inside has sin^2 > 1 (outside, radius / distance rounds to at most 1)
+        np.maximum(0.0, cos2_max, out=cos2_max)
+    one_minus_cos_max = 1.0 - np.sqrt(cos2_max, out=cos2_max)
     if small.any():  # a lamp 40 radii away: the series only where it is needed, row by row
         small = true_rows(small)
         one_minus_cos_max[small] = 0.5 * sin2_max.take(small)
@@ -394,18 +401,26 @@ def _cone(center, radius, reference):
     return axis, inside, sin2_max, one_minus_cos_max, small
 
 
-def _frame(z):
-    """Two unit vectors ``x, y`` completing unit ``z (3, N)`` to an
-    orthonormal basis (Duff et al. 2017, "Building an Orthonormal Basis,
-    Revisited": branch-free), yielded row by row as ``(x[i], y[i])``: the
-    caller combines each row before the next is made, so at most two rows
-    are held (the basis whole was 5 of sample_sphere's ~30 (N,) arrays)."""
+def _negated_frame(z):
+    """``-x, -y`` for the two unit vectors ``x, y`` completing unit ``z (3,
+    N)`` to an orthonormal basis (Duff et al. 2017, "Building an
+    Orthonormal Basis, Revisited": branch-free), yielded row by row as
+    ``(-x[i], -y[i])``: the caller combines each row before the next is
+    made, so at most two rows are held (the basis whole was 5 of
+    sample_sphere's ~30 (N,) arrays).
+
+    Negated because sample_sphere wants ``-w``; each is Duff's expression
+    negated exactly (``na = 1 / (sign + z2)`` is ``-a``, and ``x[2] = -sign
+    z0``, ``y[2] = -z1`` come negated for free), so ``-x[i]`` here is
+    bit for bit the negation of Duff's ``x[i]``, four passes fewer than
+    negating the normal or the sines."""
     sign = np.copysign(1.0, z[2])
-    a = -1.0 / (sign + z[2])
-    b = z[0] * z[1] * a
-    yield 1.0 + sign * z[0] * z[0] * a, b
-    yield sign * b, sign + z[1] * z[1] * a
-    yield -sign * z[0], -z[1]
+    na = 1.0 / (sign + z[2])
+    nb = z[0] * z[1] * na
+    s0 = sign * z[0]
+    yield s0 * z[0] * na - 1.0, nb
+    yield sign * nb, z[1] * z[1] * na - sign
+    yield s0, z[1]
 
 
 def sample_sphere(center, radius, reference, u):
@@ -452,17 +467,19 @@ def sample_sphere(center, radius, reference, u):
     np.maximum(sin_alpha, 0.0, out=sin_alpha)
     np.sqrt(sin_alpha, out=sin_alpha)
     cos_phi, sin_phi = cos_sin_2pi(u[1])  # two float64 libm calls per sample cost ~15 % of a lamp's sample
+    # The outward normal at the sampled point faces the reference point: -w
+    # in the cone's frame, built row by row into one array (no (3, N)
+    # temporaries).  -w = along_x (-x) + along_y (-y) - cos_alpha z, the
+    # numbers of negating w (negation is exact and rounding symmetric)
+    # without a pass to negate it.
     along_x, along_y = np.multiply(sin_alpha, cos_phi, out=cos_phi), np.multiply(sin_alpha, sin_phi, out=sin_phi)
     del sin_alpha
-    # the outward normal at the sampled point faces the reference point: -w in
-    # the cone's frame, built row by row into one array (no (3, N) temporaries)
     normal = np.empty(axis.shape)
-    for row, ((xi, yi), zi) in enumerate(zip(_frame(axis), axis)):
+    for row, ((xi, yi), zi) in enumerate(zip(_negated_frame(axis), axis)):
         out = normal[row]
         np.multiply(along_x, xi, out=out)
         out += along_y * yi
-        out += cos_alpha * zi
-    np.negative(normal, out=normal)
+        out -= cos_alpha * zi
     pdf = 1.0 / (2.0 * np.pi * one_minus_cos_max)
     if inside.size:
         outward = random_unit_vector(u[0].take(inside), u[1].take(inside))

@@ -275,7 +275,8 @@ def scatter_lambertian(direction, normal, front_face, albedo, u):
     """
     scattered = normal + random_unit_vector(u[0], u[1])
     degenerate = true_rows(dot(scattered, scattered) < DEGENERATE_SQUARED_LENGTH)
-    scatter(scattered, degenerate, gather(normal, degenerate))  # rare rows: by index, not a where
+    if degenerate.size:  # rare rows: by index, not a where (and no gather or scatter of none)
+        scatter(scattered, degenerate, gather(normal, degenerate))
     absorbed = np.zeros(direction.shape[1], dtype=bool)
     return albedo, normalize(scattered), absorbed
 

@@ -114,6 +114,13 @@ FLIGHT_CAP_SLACK = 1e-6
 # A bounce's shadow rays join the next bounce's nearest-hit query (see
 # trace_paths) while the two together are at most this many rays.
 RIDING_RAYS = 2048
+# A bounce of at most this many paths draws their light, bounce and roulette
+# uniforms together, in one call (see draw_together).
+TOGETHER_PATHS = 2048
+# Where at most this fraction of a bounce's paths end, the survivors past the
+# end of the compacted batch move into the rows of the ended (see advance)
+# rather than every field being compacted.
+FILLED_FRACTION = 1.0 / 8.0
 
 
 @dataclass
@@ -148,7 +155,7 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
-    time = sampler.pairs(state, TIME_PAIR)[0] if cs.shapes.moving else None
+    time = sampler.uniform(state, TIME_PAIR, 0) if cs.shapes.moving else None
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -242,19 +249,21 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 in_medium, shadows = scatter_in_media(cs, sampler, in_medium, point, emitters)
         live, surface, gone = escaped(cs, live, hits, radiance)
         if len(live):
-            absorbed = emitted(cs, live, surface, radiance, emitters, gone)
+            drawn = draw_together(cs, sampler, live, emitters, roulette)
+            kind = cs.materials.kind.take(surface.material_idx)  # each hit's material kind, taken once a bounce
+            absorbed = emitted(cs, live, surface, radiance, emitters, gone, kind)
             diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
-                                                                    absorbed, settings.depth, albedo))
+                                                                    absorbed, settings.depth, albedo, drawn))
         if len(live):
-            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo)
+            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn, kind)
             if diffuse is not None:
-                record_sampling(cs, live, surface, diffuse, direction)
+                record_sampling(cs, live, surface, diffuse, direction, kind)
             if roulette is not None:
-                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth)
+                absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, drawn)
             if cs.media is not None:
                 cross_interfaces(cs, live, surface, direction, absorbed)
             live = advance(live, surface, direction, absorbed, settings.depth)
@@ -353,6 +362,42 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     return live, surface, gone
 
 
+@dataclass(slots=True)
+class DrawnUniforms:
+    """A bounce's uniforms, drawn ahead for every path of a small batch (see
+    :func:`draw_together`); the stages take their rows' columns."""
+
+    bounce: np.ndarray  # (2, N) at the render's precision: the material's sample
+    light_point: np.ndarray | None  # (2, N) float64: the point on the light (None: no light sampling)
+    light_choice: np.ndarray | None  # (2, N) float64: which light (first), roulette (second); None: neither
+
+
+def draw_together(cs: CompiledScene, sampler: Sampler, live: PathBatch, emitters, roulette) -> DrawnUniforms | None:
+    """Every uniform a bounce of at most ``TOGETHER_PATHS`` paths may draw
+    (None for a bigger one: each stage draws its own rows' then).
+
+    The tail after roulette is ~20 bounces of a few hundred paths or fewer,
+    where a draw costs what its ~40 NumPy calls cost whatever the paths: the
+    three pairs in one call (:meth:`Sampler.pairs_together`), each path's
+    numbers the same as drawn separately, bit for bit.  Pairs a stage then
+    does not read (a specular vertex's light point, roulette's before its
+    depth) cost a few columns of that one call."""
+    if len(live) > TOGETHER_PATHS:
+        return None
+    depth = live.depth
+    pairs, dtypes = [bounce_dimension(depth)], [cs.dtype]
+    if emitters is not None:
+        pairs.append(light_point_dimension(depth))
+        dtypes.append(np.float64)
+    choice = roulette is not None or (emitters is not None and len(emitters) > 1)
+    if choice:
+        pairs.append(light_choice_dimension(depth))
+        dtypes.append(np.float64)
+    u = sampler.pairs_together(live.state, pairs, dtypes)
+    return DrawnUniforms(bounce=u[0], light_point=u[1] if emitters is not None else None,
+                         light_choice=u[-1] if choice else None)
+
+
 def surface_albedo(cs: CompiledScene, surface):
     """The hits' textured albedo ``(3, N)`` (one texture evaluation per
     bounce, shared by light sampling and scattering), or None when no albedo
@@ -363,7 +408,7 @@ def surface_albedo(cs: CompiledScene, surface):
     return table.albedo_at(surface.material_idx, surface.point, surface.uv)
 
 
-def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None, gone=None) -> np.ndarray:
+def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None, gone=None, kind=None) -> np.ndarray:
     """Stage 4: paths that hit an emitter end there, adding ``throughput *
     color`` if they struck its front side (emission is one-sided, as in RTOW
     book 3, pbrt and Mitsuba: a sphere emits outwards, a quad or triangle on
@@ -372,13 +417,14 @@ def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None
     by the power heuristic against the light sample that could have found it.
     Returns the ``absorbed`` mask the later stages extend (``gone``, the
     paths that escaped but stay in the batch, are in it from the start and
-    emit nothing: their hit is a stand-in)."""
+    emit nothing: their hit is a stand-in).  ``kind``: the hits' material
+    kinds, if taken already."""
     table = cs.materials
     absorbed = np.zeros(len(live), dtype=bool) if gone is None else gone.copy()
     emissive = table.code("emissive")
     if not (table.kind == emissive).any():
         return absorbed
-    on_emitter = table.kind.take(surface.material_idx) == emissive
+    on_emitter = (table.kind.take(surface.material_idx) if kind is None else kind) == emissive
     if gone is not None:
         on_emitter &= ~gone
     sel = true_rows(on_emitter)
@@ -438,7 +484,7 @@ def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
 
 
 def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch, surface, diffuse, absorbed,
-                  max_depth: int, albedo=None) -> ShadowBatch:
+                  max_depth: int, albedo=None, drawn: DrawnUniforms | None = None) -> ShadowBatch:
     """Stage 5: one light sample per diffuse vertex, as a shadow ray.
 
     Only paths allowed another segment take one (the shadow ray is that
@@ -447,7 +493,7 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     ``throughput * albedo / pi * cos * radiance * w_light / p_light``.
     """
     rows = true_rows(diffuse & ~absorbed & (live.depth + 1 < max_depth))
-    u_point, u_choice = light_uniforms(sampler, emitters, live, rows)
+    u_point, u_choice = light_uniforms(sampler, emitters, live, rows, drawn)
     time = None if live.time is None else live.time.take(rows)
     light = emitters.sample(gather(surface.point, rows), u_choice, u_point, time)
     normal = gather(surface.normal, rows)
@@ -476,18 +522,21 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
                        media_mask=None if live.media_mask is None else live.media_mask.take(rows))
 
 
-def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows):
+def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows, drawn: DrawnUniforms | None = None):
     """The uniforms of the light samples of paths ``rows``: the point on the
     emitter ``(2, R)``, and those choosing the emitter, or None with one
     emitter (nothing to choose: not drawing the pair changes no other number,
-    as a pinhole camera's lens pair).  The rows' states are gathered here and
-    dropped on return: light sampling holds the most memory of any stage,
-    and a fresh worker faults in every page of its peak."""
+    as a pinhole camera's lens pair); the rows' columns of ``drawn``'s if
+    given.  The rows' states are gathered here and dropped on return: light
+    sampling holds the most memory of any stage, and a fresh worker faults
+    in every page of its peak."""
+    if drawn is not None:
+        return gather(drawn.light_point, rows), None if len(emitters) == 1 else drawn.light_choice[0].take(rows)
     state, depth = live.state.take(rows), live.depth.take(rows)
     u_point = sampler.pairs(state, light_point_dimension(depth))
     if len(emitters) == 1:
         return u_point, None
-    return u_point, sampler.pairs(state, light_choice_dimension(depth))[0]
+    return u_point, sampler.uniform(state, light_choice_dimension(depth), 0)
 
 
 def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: TraceStats) -> None:
@@ -504,14 +553,18 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     scatter_add(radiance, shadows.slot.take(visible), contribution)
 
 
-def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None):
+def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None,
+                 drawn: DrawnUniforms | None = None, kind=None):
     """Stage 7: hits are routed by material kind, one kernel per kind present;
     throughput is multiplied by the attenuation (``albedo (3, N)``: the hits'
-    textured albedo, if any).  Returns the new directions and the ``absorbed`` mask."""
+    textured albedo, if any; ``drawn``: the uniforms, and ``kind``, the
+    hits' material kinds, if taken already).  Returns the new directions and
+    the ``absorbed`` mask."""
     table = cs.materials
     material, normal, front_face = surface.material_idx, surface.normal, surface.front_face
-    kind = table.kind.take(material)
-    u = sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
+    if kind is None:
+        kind = table.kind.take(material)
+    u = drawn.bounce if drawn is not None else sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     if len(kernels) == 1 and not (table.kind == table.code("emissive")).any():
         # a lone kind and no emitters: no routing, no gathers (absorbed holds
         # only the escaped paths left in the batch, if any)
@@ -548,20 +601,25 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
     return direction, absorbed
 
 
-def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direction) -> None:
+def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direction, kind=None) -> None:
     """After scattering: what the next vertex's MIS weight and roulette need.
 
     Lambertian rows sampled ``cos / pi`` (taken about the same shading
-    normal the kernel used); every other kind is a delta.  Refraction
-    multiplies ``eta^2`` by the squared relative index crossed.
+    normal the kernel used); every other kind is a delta, whose ``bsdf_pdf``
+    is never read.  Refraction multiplies ``eta^2`` by the squared relative
+    index crossed (``kind``: the hits' material kinds, if taken already).
     """
     table = cs.materials
-    kind = table.kind.take(surface.material_idx)
+    if kind is None:
+        kind = table.kind.take(surface.material_idx)
     live.specular = ~diffuse
     # float64 whatever the render's precision (lambertian_pdf's type): a batch's
     # field must not change type with its refill history, or MIS arithmetic
-    # (and the image) would depend on the chunk size
-    live.bsdf_pdf = np.where(diffuse, lambertian_pdf(surface.normal, direction), 0.0)
+    # (and the image) would depend on the chunk size.  Every row's, specular
+    # or not: emission_weight reads it only after a diffuse vertex, and a
+    # where zeroing the others cost ~50 us of a 32 Ki path bounce (its
+    # random mask mispredicts), ~0.5 % of the bounce.
+    live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
     glass = true_rows(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
@@ -571,16 +629,21 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
         live.eta_scale[through] *= eta * eta
 
 
-def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: int) -> np.ndarray:
+def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: int,
+                     drawn: DrawnUniforms | None = None) -> np.ndarray:
     """Stage 8: paths that have traced at least ``start_depth`` segments go on
     with probability ``q = min(max(throughput) * eta^2, 0.95)`` and divide
-    their throughput by ``q``; the others end.  Returns ``absorbed``."""
+    their throughput by ``q``; the others end (``drawn``: the uniforms, if
+    drawn already).  Returns ``absorbed``."""
     rows = true_rows(~absorbed & (live.depth + 1 >= start_depth))
     if rows.size == 0:
         return absorbed
     survival = np.minimum(gather(live.throughput, rows).max(axis=0) * live.eta_scale.take(rows),
                           ROULETTE_MAX_SURVIVAL)
-    u = sampler.pairs(live.state.take(rows), light_choice_dimension(live.depth.take(rows)))[1]
+    if drawn is not None:
+        u = drawn.light_choice[1].take(rows)
+    else:
+        u = sampler.uniform(live.state.take(rows), light_choice_dimension(live.depth.take(rows)), 1)
     survive = u < survival
     absorbed[rows] = ~survive  # every row was still alive: only the ended become True
     keep = true_rows(survive)
@@ -597,9 +660,19 @@ def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> Pa
     live.direction = direction
     live.depth += 1
     alive = ~absorbed & (live.depth < max_depth)
-    if not alive.all():
-        live = live.take(true_rows(alive))
-    return live
+    ended = alive.size - np.count_nonzero(alive)
+    if ended == 0:
+        return live
+    if ended > FILLED_FRACTION * alive.size:
+        return live.take(true_rows(alive))
+    # Few ended (cornell_spheres' bounces before roulette lose ~1.3 % of
+    # their paths): the last paths move into their rows instead, a copy of a
+    # few rows where compacting every field (~85 bytes a path) cost 0.35 ms of
+    # each 32 Ki path bounce.  No stage reads a path's position in the
+    # batch (its numbers come from its state, its radiance goes to its slot,
+    # and no slot has two rows), so the order changes no pixel.
+    size = alive.size - ended
+    return live.fill(true_rows(~alive[:size]), true_rows(alive[size:]) + size, size)
 
 
 # -- participating media (wavefront.media) ----------------------------------------
@@ -719,7 +792,7 @@ def intersect_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch):
     rows = true_rows((medium >= 0) & (first.primitive_idx >= 0))
     if rows.size == 0:
         return cs.shapes.intersect(live.origin, live.direction, time=live.time), first
-    u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), 0))[0]
+    u = sampler.uniform(live.state.take(rows), medium_dimension(live.depth.take(rows), 0), 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         t0 = -np.log1p(-u) / media.density.take(medium.take(rows))
         # the cap: past t0 by far more than rounding to the render's precision
@@ -766,7 +839,7 @@ def travel_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, hits, fir
         inside = true_rows(medium >= 0)
         if inside.size:
             rows = row.take(inside)
-            u = sampler.pairs(live.state.take(rows), medium_dimension(live.depth.take(rows), piece))[0]
+            u = sampler.uniform(live.state.take(rows), medium_dimension(live.depth.take(rows), piece), 0)
             with np.errstate(divide="ignore"):  # density 0: an infinite flight, as if the medium were not there
                 t = start.take(inside) - np.log1p(-u) / media.density.take(medium.take(inside))
             near = true_rows(t < stop.take(inside))

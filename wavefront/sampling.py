@@ -533,15 +533,23 @@ def sobol_points(state: np.ndarray, seeds: np.ndarray, index_bits: int, dtype=np
     low : ndarray of shape (N,), uint32, optional
         ``state``'s low words, if the caller has them already.
     """
+    return _to_unit(sobol_words(state, seeds, index_bits, low), dtype)
+
+
+def sobol_words(state: np.ndarray, seeds: np.ndarray, index_bits: int, low: np.ndarray | None = None,
+                dimension: int | None = None) -> np.ndarray:
+    """:func:`sobol_points` before the conversion to uniforms: the points'
+    32-bit words, uint32 ``(2, N)``, or ``(N,)`` of one ``dimension`` (0 or 1)."""
     multiplier = seeds[0] >> _S16U
     multiplier |= _ONE32
     shuffled = shuffle_index(state.astype(np.uint32) if low is None else low, seeds[0], multiplier, index_bits)
     if index_bits <= _TABLE_BITS:
-        v = _net_table(index_bits).take(shuffled, axis=1)
+        table = _net_table(index_bits)
+        v = table.take(shuffled, axis=1) if dimension is None else table[dimension].take(shuffled)
     else:
         v = _net_points(shuffled, index_bits)
-    v = reverse_bits(owen_scramble_premixed(v, seeds[1:], multiplier))
-    return _to_unit(v, dtype)
+        v = v if dimension is None else v[dimension]
+    return reverse_bits(owen_scramble_premixed(v, seeds[1:] if dimension is None else seeds[1 + dimension], multiplier))
 
 
 def sobol_pairs(state: np.ndarray, pair, index_bits: int, dtype=np.float64) -> np.ndarray:
@@ -625,6 +633,38 @@ class Sampler:
                 return uniform_pairs(state, int(pair), dtype)
             return uniform_pairs_at(state, pair, dtype)
         return sobol_pairs(state, pair, self.index_bits, dtype)
+
+    def uniform(self, state: np.ndarray, pair, dimension: int, dtype=np.float64) -> np.ndarray:
+        """``self.pairs(state, pair, dtype)[dimension]`` bit for bit, shape
+        (N,): a pair's one uniform a stage reads (roulette's).  The sobol
+        sampler then looks up, scrambles and bit-reverses that dimension
+        only (253 us against 358 for 32 Ki paths)."""
+        if self.kind != "sobol":
+            return self.pairs(state, pair, dtype)[dimension]
+        if not isinstance(pair, (int, np.integer)) and pair.size and pair.min() == pair.max():
+            pair = int(pair[0])  # as pairs does: the pair's hash once
+        low, high = _halves(state)
+        return _to_unit(sobol_words(state, pair_seeds(high, pair), self.index_bits, low, dimension), dtype)
+
+    def pairs_together(self, state: np.ndarray, pairs, dtypes) -> list[np.ndarray]:
+        """``[self.pairs(state, pair, dtype) for pair, dtype in zip(pairs, dtypes)]``,
+        bit for bit (each path's numbers are a function of its state and the
+        pair alone), drawn in one pass over the paths repeated once per pair.
+
+        A draw of a few paths costs what its ~40 NumPy calls cost whatever
+        the paths: a bounce of the tail after roulette draws its light, bounce
+        and roulette pairs for the price of one (measured 19 us for three
+        pairs of 5 paths against 47, 82 us against 118 for 2000).
+        """
+        if self.kind != "sobol" or len(pairs) < 2:
+            return [self.pairs(state, pair, dtype) for pair, dtype in zip(pairs, dtypes)]
+        n, k = state.shape[0], len(pairs)
+        low, high = _halves(state)
+        # concatenate, not np.tile or np.broadcast_to: their Python wrappers cost ~5 us each
+        pair = np.concatenate([p if isinstance(p, np.ndarray) else np.full(n, p) for p in pairs])
+        v = sobol_words(None, pair_seeds(np.concatenate((high,) * k), pair), self.index_bits,
+                        np.concatenate((low,) * k))
+        return [_to_unit(v[:, i * n:(i + 1) * n], dtype) for i, dtype in enumerate(dtypes)]
 
 
 def _cos_2pi(u: np.ndarray) -> np.ndarray:
