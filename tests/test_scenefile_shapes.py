@@ -130,6 +130,13 @@ BAD_MESHES = [
                   b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
      "out of range"),
     ("flat.obj", b"v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n", "only degenerate"),
+    # OBJ indices start at 1: trimesh reads 0 as vertex 1, a wrong face (or a degenerate one, dropped)
+    ("zero.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 0 2 4\n", "line 6: a face has index 0"),
+    ("zero_only.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4: a face has index 0"),
+    ("zero_uv.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/0 3/1\n", "line 5: a face has index 0"),
+    ("zero_signed.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\r\nf 1 2 3\r\nf 1 2\t-00\r\n", "line 5: a face has index 0"),
+    ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "a face has index 9, out of range (it has 3 vertices)"),
+    ("back.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "a face has index -4, out of range"),
     ("huge.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\nproperty float x\n"
                  b"property float y\nproperty float z\nend_header\n", "declares 1000000000000 vertex"),
     ("model.xyz", b"1 2 3\n", "unknown mesh format"),
@@ -142,6 +149,35 @@ def test_bad_mesh_file_names_scene_path_and_mesh(tmp_path, name, data, problem):
     message = refused(scene)
     assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / name}: "), message
     assert problem in message and "\n" not in message
+
+
+def test_obj_indices_may_count_back_and_zeros_elsewhere_are_fine(tmp_path):
+    """Negative (relative) indices are OBJ's and trimesh's; a 0 in a comment, a vertex
+    line or inside a larger index (10, 100) is not a zero index."""
+    positive = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\n# f 0 0 0\nf 2//1 4//1 3//1\n"
+    negative = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nf -4//-1 -3//1 -2//1\nf -3//1 -1//1 -2//1\n"
+    meshes = [load_scene(mesh_scene(tmp_path, f"{name}.obj", data=data)).meshes[0]
+              for name, data in (("positive", positive), ("negative", negative))]
+    assert np.array_equal(meshes[0].faces, meshes[1].faces) and len(meshes[0]) == 2
+    assert np.array_equal(meshes[0].vertices, meshes[1].vertices)
+    many = b"".join(b"v %d 0 0\nv 0 %d 0\nv 0 0 %d\n" % (i, i, i) for i in range(1, 40))
+    many += b"f 1 2 3\nf 10 20 30\nf 100 11 12\nf 1 2 200\n"  # 200 is past the end: refused as out of range, not as 0
+    assert "a face has index 200, out of range (it has 117 vertices)" in refused(mesh_scene(tmp_path, "m.obj", data=many))
+
+
+def test_the_zero_index_scan_does_not_depend_on_its_chunks(monkeypatch):
+    """Runs of zeros, lines and comments cut at every chunk size give the same answer."""
+    lines = [b"v 0 0 0", b"vn 0 0 1", b"f 1 2 3", b"f 10 200 3000", b"# f 0", b"f 1 2 3 # 0", b"f 1/1/1 2/00/2 3/3/3",
+             b"f 1 2 -000", b"f 1 2 3"]
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        picked = [lines[i] for i in rng.integers(0, len(lines), 12)]
+        data = b"\n".join(picked) + (b"\n" if trial % 2 else b"")
+        zero = [i + 1 for i, line in enumerate(picked) if line in (b"f 1/1/1 2/00/2 3/3/3", b"f 1 2 -000")]
+        expected = zero[0] if zero else None
+        for chunk in (1, 2, 3, 7, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_ZERO_INDEX_CHUNK", chunk)
+            assert mesh_files._obj_zero_index_line(data) == expected, (data, chunk)
 
 
 def test_a_directory_is_not_a_mesh(tmp_path):

@@ -193,6 +193,10 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         triangles = _obj_triangle_bound(data)
         if triangles > max_faces:
             raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
+        line = _obj_zero_index_line(data)
+        if line is not None:
+            raise MeshError(f"line {line}: a face has index 0 (OBJ indices start at 1; "
+                            "negative ones count back from the last vertex)")
         if before_parse is not None:
             before_parse(triangles)
     options = {}
@@ -218,6 +222,11 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     except MemoryError:
         raise MeshError("too large to load") from None
     except Exception as e:  # trimesh reports malformed files with many exception types
+        out_of_range = re.fullmatch(r"index (-?\d+) is out of bounds for axis 0 with size (\d+)", str(e))
+        if ext == "obj" and isinstance(e, IndexError) and out_of_range:  # trimesh's vertex index, less one if > 0
+            index, size = int(out_of_range[1]), out_of_range[2]
+            raise MeshError(f"a face has index {index + 1 if index >= 0 else index}, out of range "
+                            f"(it has {size} vertices)") from None
         raise MeshError(f"cannot be read as {ext.upper()}: {_reader_problem(e)}") from None
     if faces.shape[0] == 0:
         raise MeshError("has no triangles")
@@ -267,6 +276,62 @@ def _obj_triangle_bound(data: bytes) -> int:
     others = 3 * data.count(b"\nv ") + 2 * data.count(b"\nvt ") + 3 * data.count(b"\nvn ")
     faces = data.count(b"\nf ") + data.startswith(b"f ")
     return max(faces, separators - others - 2 * faces)
+
+
+# Bytes a zero index may follow / be followed by in a face line ("f 0 2 3", "f 1/0/1 ...", "f -0 ...").
+_BEFORE_INDEX = np.zeros(256, dtype=bool)
+_BEFORE_INDEX[list(b" \t/")] = True
+_SIGN = np.zeros(256, dtype=bool)
+_SIGN[list(b"+-")] = True
+_AFTER_INDEX = np.zeros(256, dtype=bool)
+_AFTER_INDEX[list(b" \t/\r\n#")] = True
+_ZERO_INDEX_CHUNK = 1 << 22  # bytes scanned at once: temporaries of a few times this, whatever the file's size
+_NOT_ZERO = re.compile(rb"[^0]")
+
+
+def _obj_zero_index_line(data: bytes) -> int | None:
+    """The line number of the first face line with an index of 0, else None.
+
+    OBJ indices start at 1 (negative ones count back from the end), so 0 is
+    invalid; trimesh silently reads it as vertex 1 (or as the first uv or
+    normal), which turns a broken face into a wrong or degenerate one.  A
+    zero index is a run of ``0`` (optionally signed) between separators, on
+    a line starting ``f``, outside a ``#`` comment.  Found with NumPy over
+    chunks of the bytes, never per line in Python: a Python regex over
+    every face line took a third of trimesh's own parsing time."""
+    a = np.frombuffer(data, dtype=np.uint8)
+    n, start = a.size, 0
+    last_newline = last_hash = -1  # before the chunk: the line it starts inside of, and any comment on it
+    while start < n:
+        end = min(start + _ZERO_INDEX_CHUNK, n)
+        if end < n and a[end] == ord("0"):  # never split a run of zeros between chunks
+            m = _NOT_ZERO.search(data, end)
+            end = m.start() if m else n
+        chunk = a[start:end]
+        newlines = np.concatenate(([last_newline], np.flatnonzero(chunk == ord("\n")) + start))
+        hashes = np.concatenate(([last_hash], np.flatnonzero(chunk == ord("#")) + start))
+        last_newline, last_hash = int(newlines[-1]), int(hashes[-1])
+        zero = np.zeros(chunk.size + 2, dtype=np.int8)
+        zero[1:-1] = chunk == ord("0")
+        edges = np.diff(zero)
+        del zero
+        first = np.flatnonzero(edges == 1) + start  # each run of zeros: its first byte
+        after = np.flatnonzero(edges == -1) + start  # and the byte after its last
+        del edges
+        before = a[np.maximum(first - 1, 0)]
+        before2 = a[np.maximum(first - 2, 0)]
+        token = (first >= 2) & (_BEFORE_INDEX[before] | (_SIGN[before] & _BEFORE_INDEX[before2]))
+        token &= (after == n) | _AFTER_INDEX[a[np.minimum(after, n - 1)]]
+        first = first[token]
+        if first.size:
+            line_start = newlines[np.searchsorted(newlines, first) - 1] + 1  # newlines[0] < every token
+            face = (a[line_start] == ord("f")) & _BEFORE_INDEX[a[line_start + 1]]
+            commented = hashes[np.searchsorted(hashes, first) - 1] >= line_start
+            hit = np.flatnonzero(face & ~commented)
+            if hit.size:
+                return data.count(b"\n", 0, int(first[hit[0]])) + 1
+        start = end
+    return None
 
 
 def _baked(scene, max_faces: int):
