@@ -92,6 +92,13 @@ def test_bad_shape_is_named_by_yaml_path(path, value, where, problem):
     assert problem in message and "\n" not in message
 
 
+def test_a_huge_rotation_axis_is_not_called_zero():
+    """Its length overflows float64, but rotate scales it to about 1 first."""
+    doc = with_value("boxes[0].transform", [{"rotate": {"axis": [1e308, 1e308, 0], "angle": 15}}])
+    ours = scene_from_dict(doc).quads
+    assert ours == scene_from_dict(with_value("boxes[0].transform", [{"rotate": {"axis": [1, 1, 0], "angle": 15}}])).quads
+
+
 # -- meshes ------------------------------------------------------------------
 
 def mesh_scene(tmp_path, name, data=None, mesh=None, **extra):
