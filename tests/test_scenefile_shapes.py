@@ -321,3 +321,105 @@ def test_fuzzed_shapes_load_or_name_the_broken_path(case):
         assert related, (e.path, mutated, str(e))
     else:
         scene.compile()  # whatever loads, compiles
+
+
+# -- PLY and OFF polygon lists: counted before trimesh builds their triangles ----------
+
+PLY_HEAD = (b"ply\nformat %s 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            b"element face %d\nproperty list %s int vertex_indices\nend_header\n")
+SQUARE = ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0))
+
+
+def polygon_ply(n: int, faces: int = 1, binary: bool = False) -> bytes:
+    """A PLY of ``faces`` n-gons around a square's corners (trimesh makes n - 2 triangles of each)."""
+    ring = np.arange(n) % 4
+    if binary:
+        head = PLY_HEAD % (b"binary_little_endian", faces, b"uint")
+        face = np.array([n], "<u4").tobytes() + ring.astype("<i4").tobytes()
+        return head + np.array(SQUARE, "<f4").tobytes() + face * faces
+    face = b"%d " % n + b" ".join(b"%d" % i for i in ring) + b"\n"
+    return PLY_HEAD % (b"ascii", faces, b"uchar") + b"".join(b"%d %d %d\n" % v for v in SQUARE) + face * faces
+
+
+def polygon_off(n: int, faces: int = 1) -> bytes:
+    ring = np.arange(n) % 4
+    face = b"%d " % n + b" ".join(b"%d" % i for i in ring) + b"\n"
+    return b"OFF\n4 %d 0\n" % faces + b"".join(b"%d %d %d\n" % v for v in SQUARE) + face * faces
+
+
+@pytest.mark.parametrize("name,data", [
+    ("fan.ply", polygon_ply(102)), ("fan_binary.ply", polygon_ply(102, binary=True)), ("fan.off", polygon_off(102)),
+    ("quads.ply", polygon_ply(4, faces=50)), ("quads.off", polygon_off(4, faces=50)),
+])
+def test_ply_and_off_polygons_are_counted_before_trimesh_parses(tmp_path, monkeypatch, name, data):
+    """Polygon lists were counted only once trimesh had built their triangles: a
+    small file listing a few huge polygons took their memory first."""
+    monkeypatch.setattr(mesh_files, "MAX_MESH_FACES", 99)
+    scene = mesh_scene(tmp_path, name, data=data)
+
+    def never(*args, **kwargs):
+        raise AssertionError("trimesh was asked to parse it")
+
+    monkeypatch.setattr(trimesh, "load_scene", never)
+    message = refused(scene)
+    assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / name}: its polygons make 100 triangles; "
+                              "the limit is 99"), message
+
+
+@pytest.mark.parametrize("name,data,problem", [
+    ("claims.ply", PLY_HEAD % (b"ascii", 10**12, b"uchar") + b"0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n",
+     "declares 1000000000000 face elements"),
+    ("claims_binary.ply", PLY_HEAD % (b"binary_little_endian", 10**12, b"uchar") + b"\0" * 64,
+     "declares 1000000000000 face elements"),
+    ("claims.off", b"OFF\n3 1000000000000 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "declares 1000000000000 faces"),
+    ("claims_vertices.off", b"OFF 1000000000000 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+     "declares 1000000000000 vertices"),
+])
+def test_hostile_ply_and_off_headers_are_refused(tmp_path, name, data, problem):
+    """A header's counts are held to the limit before the body is looked at (an
+    OFF claiming 10^12 faces over one loaded that one face silently)."""
+    scene = mesh_scene(tmp_path, name, data=data)
+    message = refused(scene)
+    assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / name}: {problem}"), message
+
+
+def test_the_polygon_bound_is_what_trimesh_builds(monkeypatch):
+    """Exact for files trimesh reads (mixed polygons, comments and blank lines,
+    other properties), whatever the chunking; a count longer than its line is
+    held to what the line can list."""
+    rng = np.random.default_rng(3)
+    vertices = rng.random((30, 3))
+    polygons = [rng.integers(0, 30, rng.integers(3, 9)) for _ in range(80)]
+    ascii_ply = (b"ply\nformat ascii 1.0\ncomment made here\nelement vertex 30\nproperty float x\nproperty float y\n"
+                 b"property float z\nelement face 80\nproperty list uchar int vertex_indices\nproperty uchar red\n"
+                 b"end_header\n" + b"".join(b"%f %f %f\n" % tuple(v) for v in vertices)
+                 + b"".join(b"%d %s 7\n" % (len(p), b" ".join(b"%d" % i for i in p)) for p in polygons))
+    small = [p[:rng.integers(3, 5)] for p in polygons]  # trimesh's OFF reader fails on polygons above 4 sides
+    off = (b"# made here\nOFF\n\n30 80 0\n" + b"".join(b"%f %f %f\n\n# a comment\n" % tuple(v) for v in vertices)
+           + b"".join(b"  %d %s # 9 9 9\n" % (len(p), b" ".join(b"%d" % i for i in p)) for p in small))
+    cases = [(ascii_ply, "ply"), (off, "off"), (polygon_ply(7, faces=5, binary=True), "ply"),
+             (polygon_ply(5, faces=3), "ply"), (b"OFF 4 1 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n10000000 0 1 2 3\n", "off"),
+             (trimesh.exchange.ply.export_ply(trimesh.creation.icosphere(2), encoding="binary"), "ply"),
+             (trimesh.exchange.off.export_off(trimesh.creation.icosphere(2)).encode(), "off")]
+    for data, ext in cases:
+        import io
+        built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(data), file_type=ext,
+                                                              process=False).geometry.values())
+        bound = mesh_files._ply_triangle_bound if ext == "ply" else mesh_files._off_triangle_bound
+        for chunk in (1, 5, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+            if b"10000000 0 1 2 3" in data:  # 2 triangles; the line's 17 characters could list 8 values
+                assert bound(data, 10**6) == 8 - 1 - 2 and built == 2
+            else:
+                assert bound(data, 10**6) == built, (data[:80], chunk)
+
+
+def test_a_ply_of_huge_polygons_is_held_to_the_memory_budget_before_parsing(tmp_path):
+    """A 4 MB ASCII PLY of one 2 M-gon is 2 M triangles (~1 GB loaded): refused by --memory first."""
+    data = polygon_ply(2_000_000)
+    scene = mesh_scene(tmp_path, "fan.ply", data=data)
+    out = tmp_path / "out.npy"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", str(scene), "-o", str(out), "--memory", "256M"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "meshes[0].file: loading" in r.stderr and "fan.ply" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr and not out.exists()
