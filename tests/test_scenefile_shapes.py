@@ -350,6 +350,7 @@ def polygon_off(n: int, faces: int = 1) -> bytes:
 @pytest.mark.parametrize("name,data", [
     ("fan.ply", polygon_ply(102)), ("fan_binary.ply", polygon_ply(102, binary=True)), ("fan.off", polygon_off(102)),
     ("quads.ply", polygon_ply(4, faces=50)), ("quads.off", polygon_off(4, faces=50)),
+    ("comment.off", b"# made in an OFFice\n" + polygon_off(102)),  # the header is the first OFF outside a comment
 ])
 def test_ply_and_off_polygons_are_counted_before_trimesh_parses(tmp_path, monkeypatch, name, data):
     """Polygon lists were counted only once trimesh had built their triangles: a

@@ -210,9 +210,11 @@ def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
 def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     """At least the triangles trimesh makes of an OFF's faces (an n-gon is
     n - 2), after holding the header's counts to the limit."""
-    at = data.find(b"OFF")
+    at = data.find(b"OFF", 0, 65536)
+    while at >= 0 and b"#" in data[data.rfind(b"\n", 0, at) + 1:at]:  # trimesh strips comments first
+        at = data.find(b"OFF", at + 3, 65536)
     if at < 0:
-        return 0  # trimesh refuses it
+        return 0  # trimesh refuses it (or its header follows 64 KiB of comments: bounded by its size alone)
     position, counts = at + 3, None
     while position < min(len(data), at + 65536) and counts is None:  # the first line with content: the counts
         line_end = data.find(b"\n", position)
