@@ -104,6 +104,11 @@ def test_overrides_and_replace_are_validated():
     refused(lambda: base.with_overrides(max_depth=10_001), "<Scene>", "render.max_depth", "<= 10000")
     refused(lambda: base.with_overrides(width=0), "<Scene>", "width", ">= 1")
     refused(lambda: base.with_overrides(width=1 << 20, height=1 << 20), "<Scene>", "", "pixels")
+    # one side given, the other kept in proportion: the message names the side given, not the derived one
+    refused(lambda: base.with_overrides(height=200_000_000), "<Scene>", "height", "266666667x200000000")
+    refused(lambda: base.with_overrides(width=30_000_000), "<Scene>", "width", "30000000x22500000")
+    refused(lambda: base.with_overrides(height=1 << 20), "<Scene>", "height", "pixels")
+    refused(lambda: base.with_overrides(width=10**400), "<Scene>", "width", "<= 268435456")  # not OverflowError
     refused(lambda: base.replace(spheres=[Sphere((0, 0, 0), 1, "x")]), "<Scene>", "spheres[0].material", "unknown")
     assert base.with_overrides(width=16).height == 12
 

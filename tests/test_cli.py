@@ -112,6 +112,22 @@ def test_bad_arguments_exit_2(tmp_path, args, needle):
     assert not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.parametrize("args,named", [
+    (("--height", "200000000"), "--height 200000000: an image of 355555556x200000000"),  # the width follows
+    (("--height", "2000000"), "--height 2000000: "),
+    (("--width", "200000000"), "--width 200000000: "),
+    (("--height", "300000000"), "--height: "),  # past the limit of one side: argparse's own message
+])
+def test_a_too_large_side_names_the_flag_given(tmp_path, args, named):
+    """--height alone used to be reported as "image: must be <= 268435456" of the width it implied."""
+    out = tmp_path / "x.png"
+    out.write_bytes(b"precious")
+    r = run("render", SCENES / "three_spheres.yaml", "-o", out, *args)
+    assert r.returncode == 2 and named in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert out.read_bytes() == b"precious"
+
+
 @pytest.mark.parametrize("name,needle", [("x.jpg", "unknown output extension"),
                                          ("missing/dir/x.png", "does not exist"),
                                          ("/proc/wavefront-test.png", "cannot write")])  # absolute: replaces tmp_path

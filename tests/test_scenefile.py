@@ -77,6 +77,10 @@ CASES = [
     ("image.width", 0, "image.width", ">= 1"),
     ("image.height", 2.5, "image.height", "integer"),
     ("image.depth", 3, "image.depth", "unknown key"),
+    ("image.width", 1 << 29, "image.width", "<= 268435456"),
+    ("image", {"height": 1 << 27}, "image.height", "400x134217728"),  # only the height is set: name it
+    ("image", {"width": 1 << 27}, "image.width", "134217728x225"),
+    ("image", {"width": 1 << 15, "height": 1 << 14}, "image", "32768x16384"),  # both set: the mapping
     ("materials.gold.fuzz", -0.1, "materials.gold.fuzz", ">= 0"),
     ("materials.glass.refraction_index", 0, "materials.glass.refraction_index", ">= 1e-06"),
     ("materials.glass.type", "plastic", "materials.glass.type", "unknown value"),

@@ -92,6 +92,13 @@ def test_bad_shape_is_named_by_yaml_path(path, value, where, problem):
     assert problem in message and "\n" not in message
 
 
+def test_a_huge_rotation_axis_is_not_called_zero():
+    """Its length overflows float64, but rotate scales it to about 1 first."""
+    doc = with_value("boxes[0].transform", [{"rotate": {"axis": [1e308, 1e308, 0], "angle": 15}}])
+    ours = scene_from_dict(doc).quads
+    assert ours == scene_from_dict(with_value("boxes[0].transform", [{"rotate": {"axis": [1, 1, 0], "angle": 15}}])).quads
+
+
 # -- meshes ------------------------------------------------------------------
 
 def mesh_scene(tmp_path, name, data=None, mesh=None, **extra):
@@ -130,6 +137,13 @@ BAD_MESHES = [
                   b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
      "out of range"),
     ("flat.obj", b"v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\n", "only degenerate"),
+    # OBJ indices start at 1: trimesh reads 0 as vertex 1, a wrong face (or a degenerate one, dropped)
+    ("zero.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 0 2 4\n", "line 6: a face has index 0"),
+    ("zero_only.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4: a face has index 0"),
+    ("zero_uv.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/0 3/1\n", "line 5: a face has index 0"),
+    ("zero_signed.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\r\nf 1 2 3\r\nf 1 2\t-00\r\n", "line 5: a face has index 0"),
+    ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "a face has index 9, out of range (it has 3 vertices)"),
+    ("back.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "a face has index -4, out of range"),
     ("huge.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\nproperty float x\n"
                  b"property float y\nproperty float z\nend_header\n", "declares 1000000000000 vertex"),
     ("model.xyz", b"1 2 3\n", "unknown mesh format"),
@@ -142,6 +156,35 @@ def test_bad_mesh_file_names_scene_path_and_mesh(tmp_path, name, data, problem):
     message = refused(scene)
     assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / name}: "), message
     assert problem in message and "\n" not in message
+
+
+def test_obj_indices_may_count_back_and_zeros_elsewhere_are_fine(tmp_path):
+    """Negative (relative) indices are OBJ's and trimesh's; a 0 in a comment, a vertex
+    line or inside a larger index (10, 100) is not a zero index."""
+    positive = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\n# f 0 0 0\nf 2//1 4//1 3//1\n"
+    negative = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nf -4//-1 -3//1 -2//1\nf -3//1 -1//1 -2//1\n"
+    meshes = [load_scene(mesh_scene(tmp_path, f"{name}.obj", data=data)).meshes[0]
+              for name, data in (("positive", positive), ("negative", negative))]
+    assert np.array_equal(meshes[0].faces, meshes[1].faces) and len(meshes[0]) == 2
+    assert np.array_equal(meshes[0].vertices, meshes[1].vertices)
+    many = b"".join(b"v %d 0 0\nv 0 %d 0\nv 0 0 %d\n" % (i, i, i) for i in range(1, 40))
+    many += b"f 1 2 3\nf 10 20 30\nf 100 11 12\nf 1 2 200\n"  # 200 is past the end: refused as out of range, not as 0
+    assert "a face has index 200, out of range (it has 117 vertices)" in refused(mesh_scene(tmp_path, "m.obj", data=many))
+
+
+def test_the_zero_index_scan_does_not_depend_on_its_chunks(monkeypatch):
+    """Runs of zeros, lines and comments cut at every chunk size give the same answer."""
+    lines = [b"v 0 0 0", b"vn 0 0 1", b"f 1 2 3", b"f 10 200 3000", b"# f 0", b"f 1 2 3 # 0", b"f 1/1/1 2/00/2 3/3/3",
+             b"f 1 2 -000", b"f 1 2 3"]
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        picked = [lines[i] for i in rng.integers(0, len(lines), 12)]
+        data = b"\n".join(picked) + (b"\n" if trial % 2 else b"")
+        zero = [i + 1 for i, line in enumerate(picked) if line in (b"f 1/1/1 2/00/2 3/3/3", b"f 1 2 -000")]
+        expected = zero[0] if zero else None
+        for chunk in (1, 2, 3, 7, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_ZERO_INDEX_CHUNK", chunk)
+            assert mesh_files._obj_zero_index_line(data) == expected, (data, chunk)
 
 
 def test_a_directory_is_not_a_mesh(tmp_path):
@@ -278,3 +321,106 @@ def test_fuzzed_shapes_load_or_name_the_broken_path(case):
         assert related, (e.path, mutated, str(e))
     else:
         scene.compile()  # whatever loads, compiles
+
+
+# -- PLY and OFF polygon lists: counted before trimesh builds their triangles ----------
+
+PLY_HEAD = (b"ply\nformat %s 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            b"element face %d\nproperty list %s int vertex_indices\nend_header\n")
+SQUARE = ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0))
+
+
+def polygon_ply(n: int, faces: int = 1, binary: bool = False) -> bytes:
+    """A PLY of ``faces`` n-gons around a square's corners (trimesh makes n - 2 triangles of each)."""
+    ring = np.arange(n) % 4
+    if binary:
+        head = PLY_HEAD % (b"binary_little_endian", faces, b"uint")
+        face = np.array([n], "<u4").tobytes() + ring.astype("<i4").tobytes()
+        return head + np.array(SQUARE, "<f4").tobytes() + face * faces
+    face = b"%d " % n + b" ".join(b"%d" % i for i in ring) + b"\n"
+    return PLY_HEAD % (b"ascii", faces, b"uchar") + b"".join(b"%d %d %d\n" % v for v in SQUARE) + face * faces
+
+
+def polygon_off(n: int, faces: int = 1) -> bytes:
+    ring = np.arange(n) % 4
+    face = b"%d " % n + b" ".join(b"%d" % i for i in ring) + b"\n"
+    return b"OFF\n4 %d 0\n" % faces + b"".join(b"%d %d %d\n" % v for v in SQUARE) + face * faces
+
+
+@pytest.mark.parametrize("name,data", [
+    ("fan.ply", polygon_ply(102)), ("fan_binary.ply", polygon_ply(102, binary=True)), ("fan.off", polygon_off(102)),
+    ("quads.ply", polygon_ply(4, faces=50)), ("quads.off", polygon_off(4, faces=50)),
+    ("comment.off", b"# made in an OFFice\n" + polygon_off(102)),  # the header is the first OFF outside a comment
+])
+def test_ply_and_off_polygons_are_counted_before_trimesh_parses(tmp_path, monkeypatch, name, data):
+    """Polygon lists were counted only once trimesh had built their triangles: a
+    small file listing a few huge polygons took their memory first."""
+    monkeypatch.setattr(mesh_files, "MAX_MESH_FACES", 99)
+    scene = mesh_scene(tmp_path, name, data=data)
+
+    def never(*args, **kwargs):
+        raise AssertionError("trimesh was asked to parse it")
+
+    monkeypatch.setattr(trimesh, "load_scene", never)
+    message = refused(scene)
+    assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / name}: its polygons make 100 triangles; "
+                              "the limit is 99"), message
+
+
+@pytest.mark.parametrize("name,data,problem", [
+    ("claims.ply", PLY_HEAD % (b"ascii", 10**12, b"uchar") + b"0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n",
+     "declares 1000000000000 face elements"),
+    ("claims_binary.ply", PLY_HEAD % (b"binary_little_endian", 10**12, b"uchar") + b"\0" * 64,
+     "declares 1000000000000 face elements"),
+    ("claims.off", b"OFF\n3 1000000000000 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "declares 1000000000000 faces"),
+    ("claims_vertices.off", b"OFF 1000000000000 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+     "declares 1000000000000 vertices"),
+])
+def test_hostile_ply_and_off_headers_are_refused(tmp_path, name, data, problem):
+    """A header's counts are held to the limit before the body is looked at (an
+    OFF claiming 10^12 faces over one loaded that one face silently)."""
+    scene = mesh_scene(tmp_path, name, data=data)
+    message = refused(scene)
+    assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / name}: {problem}"), message
+
+
+def test_the_polygon_bound_is_what_trimesh_builds(monkeypatch):
+    """Exact for files trimesh reads (mixed polygons, comments and blank lines,
+    other properties), whatever the chunking; a count longer than its line is
+    held to what the line can list."""
+    rng = np.random.default_rng(3)
+    vertices = rng.random((30, 3))
+    polygons = [rng.integers(0, 30, rng.integers(3, 9)) for _ in range(80)]
+    ascii_ply = (b"ply\nformat ascii 1.0\ncomment made here\nelement vertex 30\nproperty float x\nproperty float y\n"
+                 b"property float z\nelement face 80\nproperty list uchar int vertex_indices\nproperty uchar red\n"
+                 b"end_header\n" + b"".join(b"%f %f %f\n" % tuple(v) for v in vertices)
+                 + b"".join(b"%d %s 7\n" % (len(p), b" ".join(b"%d" % i for i in p)) for p in polygons))
+    small = [p[:rng.integers(3, 5)] for p in polygons]  # trimesh's OFF reader fails on polygons above 4 sides
+    off = (b"# made here\nOFF\n\n30 80 0\n" + b"".join(b"%f %f %f\n\n# a comment\n" % tuple(v) for v in vertices)
+           + b"".join(b"  %d %s # 9 9 9\n" % (len(p), b" ".join(b"%d" % i for i in p)) for p in small))
+    cases = [(ascii_ply, "ply"), (off, "off"), (polygon_ply(7, faces=5, binary=True), "ply"),
+             (polygon_ply(5, faces=3), "ply"), (b"OFF 4 1 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n10000000 0 1 2 3\n", "off"),
+             (trimesh.exchange.ply.export_ply(trimesh.creation.icosphere(2), encoding="binary"), "ply"),
+             (trimesh.exchange.off.export_off(trimesh.creation.icosphere(2)).encode(), "off")]
+    for data, ext in cases:
+        import io
+        built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(data), file_type=ext,
+                                                              process=False).geometry.values())
+        bound = mesh_files._ply_triangle_bound if ext == "ply" else mesh_files._off_triangle_bound
+        for chunk in (1, 5, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+            if b"10000000 0 1 2 3" in data:  # 2 triangles; the line's 17 characters could list 8 values
+                assert bound(data, 10**6) == 8 - 1 - 2 and built == 2
+            else:
+                assert bound(data, 10**6) == built, (data[:80], chunk)
+
+
+def test_a_ply_of_huge_polygons_is_held_to_the_memory_budget_before_parsing(tmp_path):
+    """A 4 MB ASCII PLY of one 2 M-gon is 2 M triangles (~1 GB loaded): refused by --memory first."""
+    data = polygon_ply(2_000_000)
+    scene = mesh_scene(tmp_path, "fan.ply", data=data)
+    out = tmp_path / "out.npy"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", str(scene), "-o", str(out), "--memory", "256M"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "meshes[0].file: loading" in r.stderr and "fan.ply" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr and not out.exists()

@@ -1,10 +1,14 @@
 """Transforms: composition order, the right-hand rule, what a sphere may undergo."""
 
+import math
+
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from wavefront import SceneError
 from wavefront.transform import Transform
 
 finite = st.floats(-10, 10)
@@ -69,3 +73,36 @@ def test_a_huge_or_tiny_axis_is_just_a_direction():
     x = np.array([[1.0], [0], [0]])
     for scale in (1e300, 1e-300):
         np.testing.assert_allclose(Transform.rotate((0, 0, scale), 90).points(x)[:, 0], [0, 1, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("make,where,problem", [
+    # a zero axis gave a matrix of NaN (the scene file refused it; Python did not)
+    (lambda: Transform.rotate((0, 0, 0), 30), "<Transform.rotate>: axis: ", "must not be zero"),
+    (lambda: Transform.rotate((math.nan, 0, 1), 30), "<Transform.rotate>: axis[0]: ", "finite"),
+    (lambda: Transform.rotate((0, math.inf, 1), 30), "<Transform.rotate>: axis[1]: ", "finite"),
+    (lambda: Transform.rotate((0, 1), 30), "<Transform.rotate>: axis: ", "3 numbers"),
+    (lambda: Transform.rotate((0, 1, 0), math.nan), "<Transform.rotate>: angle_degrees: ", "finite"),
+    (lambda: Transform.rotate((0, 1, 0), math.inf), "<Transform.rotate>: angle_degrees: ", "finite"),
+    (lambda: Transform.rotate((0, 1, 0), "30"), "<Transform.rotate>: angle_degrees: ", "expected a number"),
+    (lambda: Transform.translate((math.nan, 0, 0)), "<Transform.translate>: offset[0]: ", "finite"),
+    (lambda: Transform.translate((0, 0, -math.inf)), "<Transform.translate>: offset[2]: ", "finite"),
+    (lambda: Transform.translate((0, 1)), "<Transform.translate>: offset: ", "3 numbers"),
+    (lambda: Transform.scale(math.nan), "<Transform.scale>: factor: ", "finite"),
+    (lambda: Transform.scale((1, math.inf, 1)), "<Transform.scale>: factor[1]: ", "finite"),
+    (lambda: Transform.scale(0), "<Transform.scale>: factor: ", "must not be zero"),
+    (lambda: Transform.scale((1, 0.0, 1)), "<Transform.scale>: factor: ", "must not be zero"),
+    (lambda: Transform.scale(True), "<Transform.scale>: factor: ", "expected a number"),
+    (lambda: Transform.from_array(np.eye(3)), "<Transform>: matrix: ", "4x4"),
+])
+def test_python_constructors_refuse_what_the_scene_file_refuses(make, where, problem):
+    with pytest.raises(SceneError) as e:  # a ValueError
+        make()
+    assert str(e.value).startswith(where) and problem in str(e.value), str(e.value)
+
+
+def test_constructors_take_numpy_values_and_huge_axes():
+    assert Transform.scale(np.array(2.0)) == Transform.scale(2) == Transform.scale(np.array([2, 2, 2]))
+    assert Transform.translate(np.array([1, 2, 3])) == Transform.translate((1.0, 2.0, 3.0))
+    assert Transform.rotate(np.array([0, 1, 0]), np.float32(30)) == Transform.rotate((0, 1, 0), 30)
+    # scaled to about 1 before its norm is taken: no overflow, and the YAML path does not call it zero
+    np.testing.assert_allclose(Transform.rotate((1e308, 1e308, 0), 30).array, Transform.rotate((1, 1, 0), 30).array)

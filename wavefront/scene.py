@@ -237,7 +237,7 @@ class Scene:
         for key in ("width", "height"):
             set_field(self, key, integer(self, getattr(self, key), key, low=1, high=MAX_PIXELS))
         if self.width * self.height > MAX_PIXELS:
-            fail(self, "", f"an image of {self.width}x{self.height} is more than {MAX_PIXELS} pixels")
+            fail(self, "", f"an image of {self.width}x{self.height} (width x height) is more than {MAX_PIXELS} pixels")
         instance(self, self.render, "render", RenderSettings, "RenderSettings")
         instance(self, self.background, "background", (Sky, Solid), "Sky or Solid")
         set_field(self, "ambient", color(self, self.ambient, "ambient"))
@@ -323,12 +323,18 @@ class Scene:
         :class:`SceneError` naming ``width``, ``height`` or ``render.<field>``
         (``sampler``: ``"sobol"`` or ``"independent"``).
         """
-        w = integer(self, width, "width", low=1) if width is not None else None
-        h = integer(self, height, "height", low=1) if height is not None else None
+        w = integer(self, width, "width", low=1, high=MAX_PIXELS) if width is not None else None
+        h = integer(self, height, "height", low=1, high=MAX_PIXELS) if height is not None else None
         if w is not None and h is None:
             h = max(1, round(w * self.height / self.width))
+            if w * h > MAX_PIXELS:  # the derived height is not what the caller got wrong: name the width
+                fail(self, "width", f"an image of {w}x{h} (the height keeps the aspect ratio of "
+                                    f"{self.width}x{self.height}) is more than {MAX_PIXELS} pixels")
         if h is not None and w is None:
             w = max(1, round(h * self.width / self.height))
+            if w * h > MAX_PIXELS:
+                fail(self, "height", f"an image of {w}x{h} (the width keeps the aspect ratio of "
+                                     f"{self.width}x{self.height}) is more than {MAX_PIXELS} pixels")
         settings = {key: value for key, value in (("samples_per_pixel", samples_per_pixel),
                                                   ("max_depth", max_depth), ("seed", seed), ("sampler", sampler))
                     if value is not None}

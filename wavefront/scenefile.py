@@ -647,7 +647,11 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         scene = Scene(**fields)
     except SceneError as e:
         path, _, rest = e.path.partition(".")
-        path = _SCENE_PATHS.get(path, path)
+        given = [key for key in ("width", "height") if key in image]
+        if path == "" and len(given) == 1:  # too many pixels: the one side the file sets (the other is a default)
+            path = f"image.{given[0]}"
+        else:
+            path = _SCENE_PATHS.get(path, path)
         raise SceneError(source, path + (f".{rest}" if rest and path else rest), e.problem) from None
 
     if render.integrator == "path" and (lights or "ambient" in top):

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .validation import SceneError, number, vec3
+
 
 def _identity() -> tuple:
     return tuple(tuple(float(i == j) for j in range(4)) for i in range(4))
@@ -26,8 +28,14 @@ class Transform:
 
     matrix: tuple = field(default_factory=_identity)
 
+    def __post_init__(self):
+        if np.shape(self.matrix) != (4, 4):  # the rest of the class reads a 4x4 matrix
+            raise SceneError("<Transform>", "matrix", f"expected a 4x4 matrix, got shape {np.shape(self.matrix)}")
+
     @staticmethod
     def from_array(m: np.ndarray) -> Transform:
+        """The transform of a 4x4 matrix (not checked for NaN or infinity:
+        :meth:`then` reports overflow through the shape that uses it)."""
         return Transform(tuple(tuple(float(x) for x in row) for row in np.asarray(m, dtype=np.float64)))
 
     @property
@@ -36,21 +44,35 @@ class Transform:
 
     @staticmethod
     def translate(offset) -> Transform:
+        """Translation by ``offset``, three finite numbers."""
         m = np.eye(4)
-        m[:3, 3] = offset
+        m[:3, 3] = _argument("translate", vec3, offset, "offset")
         return Transform.from_array(m)
 
     @staticmethod
     def scale(factor) -> Transform:
+        """Scale by ``factor``: one number (uniform) or three, finite and non-zero."""
+        if isinstance(factor, np.ndarray) and factor.ndim == 0:
+            factor = factor.item()
+        if isinstance(factor, (list, tuple)) or np.ndim(factor) > 0:
+            factor = _argument("scale", vec3, factor, "factor")
+        else:
+            factor = (_argument("scale", number, factor, "factor"),) * 3
+        if 0.0 in factor:
+            raise SceneError("<Transform.scale>", "factor", "must not be zero (it would flatten the shape)")
         m = np.eye(4)
-        m[:3, :3] = np.diag(np.broadcast_to(np.asarray(factor, dtype=np.float64), (3,)))
+        m[:3, :3] = np.diag(factor)
         return Transform.from_array(m)
 
     @staticmethod
     def rotate(axis, angle_degrees: float) -> Transform:
-        """Rotation by ``angle_degrees`` about ``axis`` (non-zero), right-hand
-        rule: ``rotate([0, 1, 0], a)`` is RTOW's ``rotate_y(a)``."""
-        a = np.asarray(axis, dtype=np.float64)
+        """Rotation by ``angle_degrees`` (finite) about ``axis`` (three finite
+        numbers, not all zero), right-hand rule: ``rotate([0, 1, 0], a)`` is
+        RTOW's ``rotate_y(a)``."""
+        a = np.array(_argument("rotate", vec3, axis, "axis"), dtype=np.float64)
+        if not np.abs(a).max() > 0:  # a zero axis has no direction: it gave a matrix of NaN
+            raise SceneError("<Transform.rotate>", "axis", "must not be zero")
+        angle_degrees = _argument("rotate", number, angle_degrees, "angle_degrees")
         a = a / np.abs(a).max()  # first to about 1, so the norm of a huge axis does not overflow
         a = a / np.linalg.norm(a)
         theta = math.radians(angle_degrees)
@@ -108,6 +130,15 @@ class Transform:
 IDENTITY = Transform()
 
 
+def _argument(method: str, check, value, name: str):
+    """``check(None, value, name)`` (a :mod:`~wavefront.validation` rule), its
+    SceneError naming the constructor and argument: ``<Transform.rotate>: axis: ...``."""
+    try:
+        return check(None, value, name)
+    except SceneError as e:
+        raise SceneError(f"<Transform.{method}>", e.path, e.problem) from None
+
+
 def transform_field(obj, value, path: str, *, similarity_only: bool = False) -> Transform | None:
     """A shape's ``transform``: ``None``, a :class:`Transform`, or the scene
     file's list of steps applied first to last: ``{translate: [x, y, z]}``,
@@ -117,7 +148,7 @@ def transform_field(obj, value, path: str, *, similarity_only: bool = False) -> 
 
     Raises :class:`~wavefront.validation.SceneError` naming ``path`` and the step.
     """
-    from .validation import describe, fail, number, vec3
+    from .validation import describe, fail
 
     if value is None:
         return None
@@ -148,7 +179,7 @@ def transform_field(obj, value, path: str, *, similarity_only: bool = False) -> 
                     if key not in arg:
                         fail(obj, f"{where}.{key}", "required key is missing")
                 axis = vec3(obj, arg["axis"], f"{where}.axis")
-                if not 0.0 < math.hypot(*axis) < math.inf:
+                if not max(map(abs, axis)) > 0:  # a huge axis ([1e308, 1e308, 0]) is fine: rotate scales it first
                     fail(obj, f"{where}.axis", "must not be zero")
                 total = total.then(Transform.rotate(axis, number(obj, arg["angle"], f"{where}.angle")))
             elif kind == "scale":

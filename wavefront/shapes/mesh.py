@@ -1,10 +1,11 @@
 """Triangle meshes read from files by trimesh (OBJ, PLY, STL, glTF/GLB, OFF).
 
 wavefront never parses mesh formats itself; it bounds what trimesh is given
-(the file's size before a byte is read, the element counts a PLY header
-declares, the number of faces after loading) and checks what comes back
-(finite vertices, indices in range), so a hostile or broken file is refused
-with one message instead of exhausting memory or crashing later.
+(the file's size before a byte is read, the counts a PLY or OFF header
+declares, the triangles the polygons of an OBJ, PLY or OFF make, a glTF's
+instanced triangles, the number of faces after loading) and checks what
+comes back (finite vertices, indices in range), so a hostile or broken file
+is refused with one message instead of exhausting memory or crashing later.
 """
 
 from __future__ import annotations
@@ -135,14 +136,168 @@ def _array(obj, value, path: str, dtype, width: int) -> np.ndarray:
     return a
 
 
-def _check_ply_header(head: bytes, max_faces: int) -> None:
-    """Refuse PLY element counts beyond the limits before trimesh allocates for them."""
-    end = head.find(b"end_header")
-    header = head[:end if end >= 0 else len(head)]
+_PLY_TYPES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "int64": 8, "uint64": 8,
+              "float64": 8, "double": 8, "float16": 2}  # bytes of each PLY type (trimesh's table)
+
+
+def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
+    """At least the triangles trimesh makes of a PLY's ``face`` element, from
+    its header and the list counts in its body, before trimesh parses it.
+
+    Every element count is held to the limit first (a header may claim 10^12
+    faces over a body of a few bytes).  trimesh turns an n-gon into n - 2
+    triangles.  A binary file's lists all have the first face's length
+    (trimesh reads that one and assumes it for every face), so the bound is
+    exact: the faces the body holds times n - 2.  An ASCII file's face lines
+    are read one by one (:func:`_line_polygons`)."""
+    end = data.find(b"end_header", 0, 65536)
+    header = data[:end if end >= 0 else 65536]
     for name, count in re.findall(rb"element\s+(\w+)\s+(\d+)", header):
         if int(count) > 3 * max_faces:
             raise MeshError(f"declares {int(count)} {name.decode(errors='replace')} elements; "
                             f"the limit is {3 * max_faces}")
+    if end < 0:
+        return 0  # trimesh refuses it
+    body = data.find(b"\n", end) + 1 or len(data)
+    elements = []  # (name, count, [(type of a scalar or None, (count type, item type) of a list, name)])
+    for line in header.decode("latin-1").splitlines():
+        words = line.split()
+        if len(words) == 3 and words[0] == "element":
+            if not words[2].isdigit():
+                return 0  # trimesh refuses it
+            elements.append((words[1], int(words[2]), []))
+        elif elements and len(words) == 3 and words[0] == "property":
+            elements[-1][2].append((words[1], None, words[2]))
+        elif elements and len(words) == 5 and words[0] == "property" and words[1] == "list":
+            elements[-1][2].append((None, (words[2], words[3]), words[4]))
+    names = [e[0] for e in elements]
+    if "face" not in names:
+        return 0
+    face = names.index("face")
+    lists = [i for i, (scalar, listed, name) in enumerate(elements[face][2]) if listed is not None]
+    if not lists:
+        return 0
+    named = [i for i in lists if elements[face][2][i][2] in ("vertex_indices", "vertex_index")]
+    indices = (named or lists)[0]  # the list trimesh takes as the faces
+    encoding = (header.split(b"\n", 2)[1:2] or [b""])[0].lower()
+    if b"ascii" not in encoding:  # binary: walk the elements as trimesh does
+        order = ">" if b"big" in encoding else "<"
+        position = body
+        for index, (_, count, properties) in enumerate(elements[:face + 1]):
+            size = 0
+            for number, (scalar, listed, _) in enumerate(properties):
+                if scalar is not None:
+                    size += _PLY_TYPES.get(scalar, 0)
+                    continue
+                count_size, item_size = _PLY_TYPES.get(listed[0], 0), _PLY_TYPES.get(listed[1], 0)
+                raw = data[position + size:position + size + count_size]
+                if not count_size or len(raw) < count_size:
+                    return 0  # trimesh cannot read it either
+                length = int(np.frombuffer(raw, dtype=f"{order}{'iu'[listed[0].startswith('u')]}{count_size}")[0])
+                if index == face and number == indices:
+                    polygon = length
+                size += count_size + max(length, 0) * item_size
+            if index == face:
+                held = (len(data) - position) // size if size > 0 else 0
+                return min(count, held) * max(polygon - 2, 0)
+            position += count * size
+        return 0
+    skip = sum(e[1] for e in elements[:face])
+    return _line_polygons(data, body, skip, elements[face][1], blank_lines_count=True, count_first=indices == 0)
+
+
+def _off_triangle_bound(data: bytes, max_faces: int) -> int:
+    """At least the triangles trimesh makes of an OFF's faces (an n-gon is
+    n - 2), after holding the header's counts to the limit."""
+    at = data.find(b"OFF", 0, 65536)
+    while at >= 0 and b"#" in data[data.rfind(b"\n", 0, at) + 1:at]:  # trimesh strips comments first
+        at = data.find(b"OFF", at + 3, 65536)
+    if at < 0:
+        return 0  # trimesh refuses it (or its header follows 64 KiB of comments: bounded by its size alone)
+    position, counts = at + 3, None
+    while position < min(len(data), at + 65536) and counts is None:  # the first line with content: the counts
+        line_end = data.find(b"\n", position)
+        line_end = len(data) if line_end < 0 else line_end
+        words = data[position:line_end].split(b"#", 1)[0].split()
+        position = line_end + 1
+        if words:
+            counts = words
+    if counts is None or len(counts) < 2 or not all(w.isdigit() for w in counts[:2]):
+        return 0  # trimesh refuses it
+    vertices, faces = int(counts[0]), int(counts[1])
+    for what, count in (("vertices", vertices), ("faces", faces)):
+        if count > 3 * max_faces:
+            raise MeshError(f"declares {count} {what}; the limit is {3 * max_faces}")
+    return _line_polygons(data, position, vertices, faces, blank_lines_count=False, count_first=True)
+
+
+_LINE_CHUNK = 1 << 22  # bytes of lines scanned at once: temporaries of a few times this, whatever the file's size
+_BLANK = np.zeros(256, dtype=bool)
+_BLANK[list(b" \t")] = True
+_EMPTY = np.zeros(256, dtype=bool)
+_EMPTY[list(b"\r\n#")] = True
+_LEADING_BLANKS = 8  # a count after more blanks than this is bounded by its line's length instead
+_COUNT_DIGITS = 12  # more than the tokens any line of a 512 MiB file holds
+
+
+def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_lines_count: bool,
+                   count_first: bool) -> int:
+    """The triangles trimesh makes of ``count`` polygon lines ``n i1 ... in``
+    (a PLY face or an OFF face) after ``skip`` lines from byte ``start``:
+    the sum of n - 2, with n held to what the line can hold (a count of 10^9
+    on a short line gives what the line lists) and, for a line whose count
+    cannot be read (or when the list is not the line's first value), taken
+    from its length alone.  Blank and comment lines are not counted unless
+    ``blank_lines_count`` (PLY reads every line; OFF skips them).  Scanned
+    with NumPy in chunks, never per line in Python.
+
+    Exact for the files trimesh reads.  Not a bound for one hostile case: an
+    ASCII PLY whose face lines all hold the same number of values but whose
+    counts differ from the first line's (trimesh then applies the first
+    line's count to every line); its triangles are still bounded by the
+    file's size, which the memory estimate of a mesh file covers."""
+    a = np.frombuffer(data, dtype=np.uint8)
+    n = a.size
+    seen = total = 0
+    chunk_start = start
+    while chunk_start < n and seen < skip + count:
+        chunk_end = min(chunk_start + _LINE_CHUNK, n)
+        # lines starting in this chunk: at its first byte if a line starts there, and after each newline
+        starts = np.flatnonzero(a[chunk_start - 1:chunk_end - 1] == ord("\n")) + chunk_start \
+            if chunk_start > start else np.concatenate(([start], np.flatnonzero(a[start:chunk_end - 1] == ord("\n"))
+                                                        + start + 1))
+        chunk_start = chunk_end
+        if not starts.size:
+            continue
+        following = data.find(b"\n", int(starts[-1]))
+        ends = np.append(starts[1:] - 1, following if following >= 0 else n)  # each line's newline
+        lead = starts.copy()  # the first byte after up to _LEADING_BLANKS blanks
+        for _ in range(_LEADING_BLANKS):
+            step = (lead < ends) & _BLANK[a[np.minimum(lead, n - 1)]]
+            lead += step
+        if not blank_lines_count:
+            content = (lead < ends) & ~_EMPTY[a[np.minimum(lead, n - 1)]]
+            starts, ends, lead = starts[content], ends[content], lead[content]
+        index = np.arange(seen, seen + starts.size)
+        seen += starts.size
+        mine = (index >= skip) & (index < skip + count)
+        if not mine.any():
+            continue
+        ends, lead = ends[mine], lead[mine]
+        tokens = (ends - lead + 1) // 2  # values a line can hold: one character and one blank each
+        value = np.zeros(lead.size, dtype=np.int64)
+        digits = np.zeros(lead.size, dtype=np.int64)
+        going = np.ones(lead.size, dtype=bool)
+        for k in range(_COUNT_DIGITS):
+            position = np.minimum(lead + k, n - 1)
+            byte = a[position]
+            going &= (lead + k < ends) & (byte >= ord("0")) & (byte <= ord("9"))
+            value = np.where(going, value * 10 + (byte.astype(np.int64) - ord("0")), value)
+            digits += going
+        value = np.where(digits > 0, value, tokens) if count_first else tokens
+        total += int(np.maximum(np.minimum(value, tokens - 1) - 2, 0).sum())
+    return total
 
 
 def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None = None,
@@ -187,12 +342,20 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         raise MeshError(f"file is more than {max_bytes} bytes")
     if not data.strip():
         raise MeshError("the file is empty")
-    if ext == "ply":
-        _check_ply_header(data[:65536], max_faces)
+    if ext in ("ply", "off"):  # polygon lists counted before trimesh builds their triangles
+        triangles = (_ply_triangle_bound if ext == "ply" else _off_triangle_bound)(data, max_faces)
+        if triangles > max_faces:
+            raise MeshError(f"its polygons make {triangles} triangles; the limit is {max_faces}")
+        if before_parse is not None:
+            before_parse(triangles)
     elif ext == "obj":  # counted before trimesh builds them
         triangles = _obj_triangle_bound(data)
         if triangles > max_faces:
             raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
+        line = _obj_zero_index_line(data)
+        if line is not None:
+            raise MeshError(f"line {line}: a face has index 0 (OBJ indices start at 1; "
+                            "negative ones count back from the last vertex)")
         if before_parse is not None:
             before_parse(triangles)
     options = {}
@@ -218,6 +381,11 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     except MemoryError:
         raise MeshError("too large to load") from None
     except Exception as e:  # trimesh reports malformed files with many exception types
+        out_of_range = re.fullmatch(r"index (-?\d+) is out of bounds for axis 0 with size (\d+)", str(e))
+        if ext == "obj" and isinstance(e, IndexError) and out_of_range:  # trimesh's vertex index, less one if > 0
+            index, size = int(out_of_range[1]), out_of_range[2]
+            raise MeshError(f"a face has index {index + 1 if index >= 0 else index}, out of range "
+                            f"(it has {size} vertices)") from None
         raise MeshError(f"cannot be read as {ext.upper()}: {_reader_problem(e)}") from None
     if faces.shape[0] == 0:
         raise MeshError("has no triangles")
@@ -267,6 +435,62 @@ def _obj_triangle_bound(data: bytes) -> int:
     others = 3 * data.count(b"\nv ") + 2 * data.count(b"\nvt ") + 3 * data.count(b"\nvn ")
     faces = data.count(b"\nf ") + data.startswith(b"f ")
     return max(faces, separators - others - 2 * faces)
+
+
+# Bytes a zero index may follow / be followed by in a face line ("f 0 2 3", "f 1/0/1 ...", "f -0 ...").
+_BEFORE_INDEX = np.zeros(256, dtype=bool)
+_BEFORE_INDEX[list(b" \t/")] = True
+_SIGN = np.zeros(256, dtype=bool)
+_SIGN[list(b"+-")] = True
+_AFTER_INDEX = np.zeros(256, dtype=bool)
+_AFTER_INDEX[list(b" \t/\r\n#")] = True
+_ZERO_INDEX_CHUNK = 1 << 22  # bytes scanned at once: temporaries of a few times this, whatever the file's size
+_NOT_ZERO = re.compile(rb"[^0]")
+
+
+def _obj_zero_index_line(data: bytes) -> int | None:
+    """The line number of the first face line with an index of 0, else None.
+
+    OBJ indices start at 1 (negative ones count back from the end), so 0 is
+    invalid; trimesh silently reads it as vertex 1 (or as the first uv or
+    normal), which turns a broken face into a wrong or degenerate one.  A
+    zero index is a run of ``0`` (optionally signed) between separators, on
+    a line starting ``f``, outside a ``#`` comment.  Found with NumPy over
+    chunks of the bytes, never per line in Python: a Python regex over
+    every face line took a third of trimesh's own parsing time."""
+    a = np.frombuffer(data, dtype=np.uint8)
+    n, start = a.size, 0
+    last_newline = last_hash = -1  # before the chunk: the line it starts inside of, and any comment on it
+    while start < n:
+        end = min(start + _ZERO_INDEX_CHUNK, n)
+        if end < n and a[end] == ord("0"):  # never split a run of zeros between chunks
+            m = _NOT_ZERO.search(data, end)
+            end = m.start() if m else n
+        chunk = a[start:end]
+        newlines = np.concatenate(([last_newline], np.flatnonzero(chunk == ord("\n")) + start))
+        hashes = np.concatenate(([last_hash], np.flatnonzero(chunk == ord("#")) + start))
+        last_newline, last_hash = int(newlines[-1]), int(hashes[-1])
+        zero = np.zeros(chunk.size + 2, dtype=np.int8)
+        zero[1:-1] = chunk == ord("0")
+        edges = np.diff(zero)
+        del zero
+        first = np.flatnonzero(edges == 1) + start  # each run of zeros: its first byte
+        after = np.flatnonzero(edges == -1) + start  # and the byte after its last
+        del edges
+        before = a[np.maximum(first - 1, 0)]
+        before2 = a[np.maximum(first - 2, 0)]
+        token = (first >= 2) & (_BEFORE_INDEX[before] | (_SIGN[before] & _BEFORE_INDEX[before2]))
+        token &= (after == n) | _AFTER_INDEX[a[np.minimum(after, n - 1)]]
+        first = first[token]
+        if first.size:
+            line_start = newlines[np.searchsorted(newlines, first) - 1] + 1  # newlines[0] < every token
+            face = (a[line_start] == ord("f")) & _BEFORE_INDEX[a[line_start + 1]]
+            commented = hashes[np.searchsorted(hashes, first) - 1] >= line_start
+            hit = np.flatnonzero(face & ~commented)
+            if hit.size:
+                return data.count(b"\n", 0, int(first[hit[0]])) + 1
+        start = end
+    return None
 
 
 def _baked(scene, max_faces: int):
