@@ -415,6 +415,42 @@ def test_the_polygon_bound_is_what_trimesh_builds(monkeypatch):
                 assert bound(data, 10**6) == built, (data[:80], chunk)
 
 
+def test_the_polygon_bound_never_exceeds_what_trimesh_builds_on_valid_files():
+    """Layouts whose counts the scan cannot read (a flag or a uv list before a
+    PLY's indices; an OFF in fixed-width columns) count what they can or
+    nothing, never a guess from the line's length: that guess (4-35x the
+    triangles) refused valid files by the face limit or by --memory."""
+    import io
+
+    rng = np.random.default_rng(5)
+    vertices = b"".join(b"%f %f %f\n" % tuple(v) for v in rng.random((30, 3)))
+    faces = [rng.integers(0, 30, 3) for _ in range(40)]
+    head = b"ply\nformat ascii 1.0\nelement vertex 30\nproperty float x\nproperty float y\nproperty float z\n"
+    uv_first = (head + b"element face 40\nproperty list uchar float texcoord\nproperty list uchar int vertex_indices\n"
+                b"end_header\n" + vertices
+                + b"".join(b"6 0.25 0.5 0.75 0.125 0.5 0.5 3 %d %d %d\n" % tuple(f) for f in faces))
+    flag_first = (head + b"element face 40\nproperty uchar flags\nproperty list uchar int vertex_indices\n"
+                  b"end_header\n" + vertices + b"".join(b"7 3 %d %d %d\n" % tuple(f) for f in faces))
+    fixed = (b"OFF\n30 40 0\n" + vertices
+             + b"".join(b"%10d%10d%10d%10d\n" % (3, *f) for f in faces))
+    for data, ext in ((uv_first, "ply"), (flag_first, "ply"), (fixed, "off")):
+        built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(data), file_type=ext,
+                                                              process=False).geometry.values())
+        bound = mesh_files._ply_triangle_bound if ext == "ply" else mesh_files._off_triangle_bound
+        assert built == 40 and bound(data, 10**6) <= built, (ext, bound(data, 10**6))
+    assert mesh_files._off_triangle_bound(fixed, 10**6) == 40  # ten blanks before a count: still read
+
+
+def test_a_ply_header_count_in_other_digits_is_one_line(tmp_path):
+    """``element face ²``: Latin-1 superscripts are digits to str.isdigit, not to int()."""
+    data = b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n" \
+           b"element face \xb2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    scene = mesh_scene(tmp_path, "sup.ply", data=data)
+    message = refused(scene)
+    assert message.startswith(f"{scene}: meshes[0].file: {tmp_path / 'sup.ply'}: "), message
+    assert "Traceback" not in message and len(message.splitlines()) == 1
+
+
 def test_a_ply_of_huge_polygons_is_held_to_the_memory_budget_before_parsing(tmp_path):
     """A 4 MB ASCII PLY of one 2 M-gon is 2 M triangles (~1 GB loaded): refused by --memory first."""
     data = polygon_ply(2_000_000)

@@ -164,7 +164,7 @@ def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
     for line in header.decode("latin-1").splitlines():
         words = line.split()
         if len(words) == 3 and words[0] == "element":
-            if not words[2].isdigit():
+            if not (words[2].isascii() and words[2].isdigit()):  # str.isdigit takes "²" (header read as Latin-1)
                 return 0  # trimesh refuses it
             elements.append((words[1], int(words[2]), []))
         elif elements and len(words) == 3 and words[0] == "property":
@@ -237,7 +237,11 @@ _BLANK = np.zeros(256, dtype=bool)
 _BLANK[list(b" \t")] = True
 _EMPTY = np.zeros(256, dtype=bool)
 _EMPTY[list(b"\r\n#")] = True
-_LEADING_BLANKS = 8  # a count after more blanks than this is bounded by its line's length instead
+# A count after more blanks than this is not read (its line counts nothing
+# here; the file's size still bounds it): fixed-width columns (%10d) need
+# ten; each further blank costs a pass over a chunk's lines, stopped early
+# once no line has one.
+_LEADING_BLANKS = 64
 _COUNT_DIGITS = 12  # more than the tokens any line of a 512 MiB file holds
 
 
@@ -246,21 +250,27 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
     """The triangles trimesh makes of ``count`` polygon lines ``n i1 ... in``
     (a PLY face or an OFF face) after ``skip`` lines from byte ``start``:
     the sum of n - 2, with n held to what the line can hold (a count of 10^9
-    on a short line gives what the line lists) and, for a line whose count
-    cannot be read (or when the list is not the line's first value), taken
-    from its length alone.  Blank and comment lines are not counted unless
-    ``blank_lines_count`` (PLY reads every line; OFF skips them).  Scanned
-    with NumPy in chunks, never per line in Python.
+    on a short line gives what the line lists).  A line whose count cannot
+    be read here (after more than ``_LEADING_BLANKS`` blanks), and every line
+    when the list is not the line's first value (``count_first`` false: a
+    PLY with a flag or a uv list before its indices), count nothing: a guess
+    from the line's length refused valid files, and such files are still
+    bounded by their size (the memory estimate of a mesh file) and by the
+    triangles counted once trimesh has built them.  Blank and comment lines
+    are not counted unless ``blank_lines_count`` (PLY reads every line; OFF
+    skips them).  Scanned with NumPy in chunks, never per line in Python.
 
-    Exact for the files trimesh reads.  Not a bound for one hostile case: an
-    ASCII PLY whose face lines all hold the same number of values but whose
-    counts differ from the first line's (trimesh then applies the first
-    line's count to every line); its triangles are still bounded by the
-    file's size, which the memory estimate of a mesh file covers."""
+    Exact for the files trimesh reads whose counts lead their lines.  Not a
+    bound for one hostile case: an ASCII PLY whose face lines all hold the
+    same number of values but whose counts differ from the first line's
+    (trimesh then applies the first line's count to every line); its
+    triangles are still bounded by the file's size."""
     a = np.frombuffer(data, dtype=np.uint8)
     n = a.size
     seen = total = 0
     chunk_start = start
+    if not count_first:
+        return 0
     while chunk_start < n and seen < skip + count:
         chunk_end = min(chunk_start + _LINE_CHUNK, n)
         # lines starting in this chunk: at its first byte if a line starts there, and after each newline
@@ -275,6 +285,8 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
         lead = starts.copy()  # the first byte after up to _LEADING_BLANKS blanks
         for _ in range(_LEADING_BLANKS):
             step = (lead < ends) & _BLANK[a[np.minimum(lead, n - 1)]]
+            if not step.any():
+                break
             lead += step
         if not blank_lines_count:
             content = (lead < ends) & ~_EMPTY[a[np.minimum(lead, n - 1)]]
@@ -295,8 +307,8 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
             going &= (lead + k < ends) & (byte >= ord("0")) & (byte <= ord("9"))
             value = np.where(going, value * 10 + (byte.astype(np.int64) - ord("0")), value)
             digits += going
-        value = np.where(digits > 0, value, tokens) if count_first else tokens
-        total += int(np.maximum(np.minimum(value, tokens - 1) - 2, 0).sum())
+        # an unread count (no digits where it should start) counts nothing
+        total += int(np.maximum(np.minimum(value, tokens - 1) - 2, 0)[digits > 0].sum())
     return total
 
 
@@ -354,8 +366,8 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
             raise MeshError(f"has more than {max_faces} faces; the limit is {max_faces}")
         line = _obj_zero_index_line(data)
         if line is not None:
-            raise MeshError(f"line {line}: a face has index 0 (OBJ indices start at 1; "
-                            "negative ones count back from the last vertex)")
+            raise MeshError(f"line {line}: a face has index 0 (OBJ's vertex, uv and normal indices start at 1; "
+                            "negative ones count back from the last)")
         if before_parse is not None:
             before_parse(triangles)
     options = {}
