@@ -144,6 +144,8 @@ BAD_MESHES = [
     ("zero_signed.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\r\nf 1 2 3\r\nf 1 2\t-00\r\n", "line 5: a face has index 0"),
     ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "a face has index 9, out of range (it has 3 vertices)"),
     ("back.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "a face has index -4, out of range"),
+    ("huge.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n",
+     "a face has an index, out of range (it has 3 vertices)"),
     ("huge.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\nproperty float x\n"
                  b"property float y\nproperty float z\nend_header\n", "declares 1000000000000 vertex"),
     ("model.xyz", b"1 2 3\n", "unknown mesh format"),

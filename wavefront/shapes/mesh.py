@@ -396,8 +396,9 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
         out_of_range = re.fullmatch(r"index (-?\d+) is out of bounds for axis 0 with size (\d+)", str(e))
         if ext == "obj" and isinstance(e, IndexError) and out_of_range:  # trimesh's vertex index, less one if > 0
             index, size = int(out_of_range[1]), out_of_range[2]
-            raise MeshError(f"a face has index {index + 1 if index >= 0 else index}, out of range "
-                            f"(it has {size} vertices)") from None
+            # trimesh clamps an index past int64 to its maximum: not the file's number, so not quoted
+            which = f"index {index + 1 if index >= 0 else index}" if abs(index) < 2**62 else "an index"
+            raise MeshError(f"a face has {which}, out of range (it has {size} vertices)") from None
         raise MeshError(f"cannot be read as {ext.upper()}: {_reader_problem(e)}") from None
     if faces.shape[0] == 0:
         raise MeshError("has no triangles")
