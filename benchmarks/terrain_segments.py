@@ -1,4 +1,4 @@
-"""Time per path segment on the generated terrain at ~1k and ~1M triangles, one core (issue #11's floor: <= 3x).
+"""Time per path segment on the generated terrains at ~1k and ~1M triangles, one core (issue #11's floor: <= 3x).
 
     .venv/bin/python benchmarks/terrain_segments.py                 # this checkout, 3 interleaved runs
     .venv/bin/python benchmarks/terrain_segments.py --runs 5 --root /path/to/other/checkout
@@ -11,7 +11,9 @@ compiled scene on one worker, so the per-segment time is the render's alone
 and not a difference of two noisy timings.  Both wall and CPU time are
 printed: on a machine shared with other jobs the CPU time is the steadier of
 the two.  The terrains (scenes/make_mesh_models.py) are written once to
-``--folder``.  ``--set NAME=VALUE`` sets a constant of ``wavefront.bvh`` in
+``--folder``: one surface cut into ~1k and ~1M triangles (the floor's pair), and
+the rough terrains (per-vertex noise, a stress case: at 1M a surface of
+sub-pixel spikes, at 1k nearly smooth; ``--no-rough`` skips them).  ``--set NAME=VALUE`` sets a constant of ``wavefront.bvh`` in
 the children before the scene is compiled, to try a tuning without editing
 the module (compare against a run without it: interleave, medians).
 """
@@ -45,19 +47,19 @@ build = time.perf_counter() - wall
 wall, cpu = time.perf_counter(), time.process_time()
 r = wavefront.render_scene(scene, workers=1, memory=1536 << 20, compiled=compiled)
 wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-print(json.dumps({"build": build, "wall": wall, "cpu": cpu, "segments": r.stats.segments,
+print(json.dumps({"build": build, "wall": wall, "cpu": cpu, "segments": r.stats.segments, "samples": r.stats.samples,
                   "peak": r.stats.peak_memory, "wavefront": wavefront.__file__}))
 """
 
 
-def terrain(folder: Path, triangles: int) -> Path:
+def terrain(folder: Path, triangles: int, rough: bool = False) -> Path:
     """The geometry section's terrain scene (written once to ``folder``)."""
-    scene = folder / f"terrain_{triangles}.yaml"
+    scene = folder / f"{'rough_' if rough else ''}terrain_{triangles}.yaml"
     if not scene.exists():
         sys.path.insert(0, str(ROOT / "benchmarks"))
         from bench import terrain_scene  # the same scene as bench.py's geometry section
 
-        return Path(terrain_scene(folder, triangles))
+        return Path(terrain_scene(folder, triangles, rough))
     return scene
 
 
@@ -65,13 +67,17 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--root", default=str(ROOT), help="checkout whose wavefront package to time")
-    parser.add_argument("--folder", default=str(Path(tempfile.gettempdir()) / "wavefront-terrain"))
+    # (a new name: "wavefront-terrain" held session 7's rough terrains under the plain names)
+    parser.add_argument("--folder", default=str(Path(tempfile.gettempdir()) / "wavefront-terrains"))
+    parser.add_argument("--no-rough", action="store_true", help="time the floor's pair only")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="set a numeric constant of wavefront.bvh in the timed children (repeatable)")
     args = parser.parse_args(argv)
     folder = Path(args.folder)
     folder.mkdir(parents=True, exist_ok=True)
     scenes = {"1k": terrain(folder, 1_000), "1M": terrain(folder, 1_000_000)}
+    if not args.no_rough:
+        scenes.update({"1k rough": terrain(folder, 1_000, True), "1M rough": terrain(folder, 1_000_000, True)})
     runs = {label: [] for label in scenes}
     for _ in range(args.runs):
         for label, scene in scenes.items():  # interleaved, so both see the same machine
@@ -83,15 +89,20 @@ def main(argv=None) -> None:
             runs[label].append(json.loads(child.stdout))
     settings = f" with {', '.join(args.set)}" if args.set else ""
     print(f"wavefront from {runs['1k'][0]['wavefront']}{settings}; medians of {args.runs} interleaved runs, one core\n")
-    print("| terrain | BVH build (compile) | wall per segment | CPU per segment | peak memory |\n|---|---|---|---|---|")
+    print("| terrain | BVH build (compile) | wall per segment | CPU per segment | segments per path | peak memory |\n"
+          "|---|---|---|---|---|---|")
     per = {}
     for label, rs in runs.items():
         wall = statistics.median(r["wall"] / r["segments"] * 1e9 for r in rs)
         cpu = statistics.median(r["cpu"] / r["segments"] * 1e9 for r in rs)
         per[label] = wall, cpu
         print(f"| {label} | {statistics.median(r['build'] for r in rs):.2f} s | {wall:.0f} ns | {cpu:.0f} ns | "
-              f"{max(r['peak'] for r in rs) / 2**20:.0f} MiB |")
-    print(f"\n1M / 1k per segment: {per['1M'][0] / per['1k'][0]:.2f}x wall, {per['1M'][1] / per['1k'][1]:.2f}x CPU")
+              f"{rs[0]['segments'] / rs[0]['samples']:.2f} | {max(r['peak'] for r in rs) / 2**20:.0f} MiB |")
+    print(f"\n1M / 1k per segment, the same surface: {per['1M'][0] / per['1k'][0]:.2f}x wall, "
+          f"{per['1M'][1] / per['1k'][1]:.2f}x CPU")
+    if "1M rough" in per:
+        print(f"1M / 1k per segment, rough terrains (a different surface at each size): "
+              f"{per['1M rough'][0] / per['1k rough'][0]:.2f}x wall, {per['1M rough'][1] / per['1k rough'][1]:.2f}x CPU")
 
 
 if __name__ == "__main__":
