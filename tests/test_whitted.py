@@ -129,3 +129,50 @@ def test_whitted_image_does_not_depend_on_chunk_size_or_workers():
     reference = render(scene, workers=1)
     np.testing.assert_array_equal(render(scene, workers=1, chunk_size=97), reference)
     assert_same_on_two_workers(scene, reference, chunk_size=2000)
+
+
+
+def test_glass_splitting_stays_within_the_budget_and_the_image_does_not_depend_on_it(tmp_path):
+    """Glass balls in a mirror box split their rays without end (a hostile
+    reviewer's scene: 249 MiB under --memory 64M at depth 200).  A chunk whose
+    next generation would outgrow the wavefront is traced again in halves, and
+    each sample keeps at most its MAX_SAMPLE_RAYS heaviest rays, a fixed
+    number, so the image is the same under any budget, worker count and chunk
+    size."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    doc = {"image": {"width": 8, "height": 8},
+           "render": {"samples_per_pixel": 2, "max_depth": 60, "integrator": "whitted"},
+           "camera": {"look_from": [0, 0, 0.9], "look_at": [0, 0, 0], "vfov": 60},
+           "lights": [{"type": "point", "position": [0.5, 0.5, 0.5]}],
+           "materials": {"mirror": {"type": "metal", "albedo": [1, 1, 1]},
+                         "glass": {"type": "dielectric", "refraction_index": 1.5}},
+           "boxes": [{"min": [-1, -1, -1], "max": [1, 1, 1], "material": "mirror", "transform": [{"scale": -1}]}],
+           "spheres": [{"center": [0.3, 0, 0], "radius": 0.25, "material": "glass"},
+                       {"center": [-0.3, 0, 0], "radius": 0.25, "material": "glass"},
+                       {"center": [0, 0.4, -0.3], "radius": 0.25, "material": "glass"}]}
+    (tmp_path / "box.yaml").write_text(yaml.safe_dump(doc))
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", tmp_path / "box.yaml", "-o", tmp_path / "small.npy",
+                        "--workers", "1", "--memory", "64M"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert int(r.stderr.split("peak memory ")[1].split()[0]) <= 64, r.stderr
+    scene = scene_from_dict(doc, source="box.yaml")
+    big = render(scene, workers=1)
+    np.testing.assert_array_equal(np.load(tmp_path / "small.npy"), big)
+    np.testing.assert_array_equal(render(scene, workers=2, chunk_size=7), big)
+    assert np.isfinite(big).all() and big.max() > 0
+    # traced directly with a wavefront of 300 rays: chunks of 75 samples outgrow it and are
+    # halved down to single samples, each within MAX_SAMPLE_RAYS; the radiance is the same
+    import wavefront
+    from wavefront.whitted import MAX_SAMPLE_RAYS, trace_whitted
+
+    job = wavefront.units.Job([wavefront.units.Unit(0, 0, 0, 8, 8, 0, 2)], 8, 2)
+    key = wavefront.sampling.scene_key(0)
+    compiled = scene.compile()
+    stats = wavefront.path.TraceStats()
+    narrow = trace_whitted(compiled, job, key, MAX_SAMPLE_RAYS + 44, stats)
+    np.testing.assert_array_equal(trace_whitted(compiled, job, key, 1 << 16), narrow)
+    assert stats.segments > 20 * job.size  # many generations of many rays a sample

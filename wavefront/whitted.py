@@ -41,8 +41,16 @@ from .vecmath import dot, normalize, reflect, refract, schlick
 MIN_WEIGHT = 1e-6
 # Camera rays per wavefront, as a fraction of the capacity: glass splits let
 # a wavefront grow, and a chunk's descendants are never separated, so each
-# sample's contributions are always added in the same order.
+# sample's contributions are always added in the same order.  A chunk whose
+# next generation would outgrow the capacity (glass in a mirror box splits
+# without end) is traced again as two halves, its radiance restored first,
+# so the wavefront never holds more than the capacity the budget sized.
 CHUNK_FRACTION = 4
+# Rays one sample may have in a generation: beyond it only its heaviest rays
+# go on.  A fixed number, not a share of the capacity, so the image does not
+# depend on the budget or the worker count; it is at most the smallest
+# capacity (render.MIN_CAPACITY), so a chunk of one sample always fits.
+MAX_SAMPLE_RAYS = 256
 
 
 def phong_local(cs: CompiledScene, point, normal, view, material, diffuse=None, time=None) -> np.ndarray:
@@ -65,6 +73,24 @@ def phong_local(cs: CompiledScene, point, normal, view, material, diffuse=None, 
     return color
 
 
+def heaviest_per_sample(slot, keep_r, keep_t, mirror_weight, refract_weight):
+    """``keep_r, keep_t`` (the reflected and refracted rays that go on, as rows
+    of the generation) without each sample's rays beyond its
+    ``MAX_SAMPLE_RAYS`` heaviest (ties: the earlier row), in their order."""
+    next_slot = np.concatenate((slot[keep_r], slot[keep_t]))
+    if next_slot.size <= MAX_SAMPLE_RAYS:
+        return keep_r, keep_t
+    counts = np.unique(next_slot, return_counts=True)[1]
+    if counts.max() <= MAX_SAMPLE_RAYS:
+        return keep_r, keep_t
+    weight = np.concatenate((mirror_weight[:, keep_r].max(axis=0), refract_weight[:, keep_t].max(axis=0)))
+    order = np.lexsort((np.arange(next_slot.size), -weight, next_slot))  # by sample, heaviest first
+    group_start = np.repeat(np.cumsum(counts) - counts, counts)  # each sorted row's sample's first position
+    kept = np.sort(order[np.arange(order.size) - group_start < MAX_SAMPLE_RAYS])
+    split = np.searchsorted(kept, keep_r.size)
+    return keep_r[kept[:split]], keep_t[kept[split:] - keep_r.size]
+
+
 def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceStats | None = None,
                   should_stop=None) -> np.ndarray:
     """Radiance of every sample of ``job``; shape ``(3, job.size)``.
@@ -82,14 +108,16 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
         # a glass split gives one sample two rays in a batch: accumulate with add.at
         np.add.at(radiance, (slice(None), slot), value)
 
-    chunk = max(1, capacity // CHUNK_FRACTION)
-    for start in range(0, job.size, chunk):
+    def trace_chunk(start: int, stop: int) -> bool:
+        """Trace samples ``start:stop``; False (their radiance as before) if a
+        generation would outgrow ``capacity``."""
+        saved, segments = radiance[:, start:stop].copy(), stats.segments
         # one sample per pixel goes through the pixel centre, as in the classic ray tracer
-        live = camera_paths(cs, frame, sampler, job, start, min(job.size, start + chunk),
+        live = camera_paths(cs, frame, sampler, job, start, stop,
                             pixel_centres=scene.render.samples_per_pixel == 1)
         while len(live):
             if should_stop is not None and should_stop():
-                return radiance
+                return True
             stats.segments += len(live)
             hits = cs.shapes.intersect(live.origin, live.direction, time=live.time)
             hit = hits.primitive_idx >= 0
@@ -141,18 +169,33 @@ def trace_whitted(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceS
             mirror_weight = np.where(glass, weight * reflectance, mirror_weight)
             refract_weight = weight * (1.0 - reflectance)
 
-            reflected = normalize(reflect(d, normal))
             keep_r = np.flatnonzero(mirror_weight.max(axis=0) > MIN_WEIGHT)
             keep_t = np.flatnonzero(glass & (refract_weight.max(axis=0) > MIN_WEIGHT))
+            keep_r, keep_t = heaviest_per_sample(slot, keep_r, keep_t, mirror_weight, refract_weight)
+            if keep_r.size + keep_t.size > capacity and stop - start > 1:
+                radiance[:, start:stop], stats.segments = saved, segments
+                return False
+            reflected = normalize(reflect(d[:, keep_r], normal[:, keep_r]))
             depth = live.depth[hit_idx] + 1
             refracted = normalize(refract(d[:, keep_t], normal[:, keep_t], ratio[keep_t]))
             live = PathBatch(
                 origin=np.concatenate((point[:, keep_r], point[:, keep_t]), axis=1),
-                direction=np.concatenate((reflected[:, keep_r], refracted), axis=1),
+                direction=np.concatenate((reflected, refracted), axis=1),
                 throughput=np.concatenate((mirror_weight[:, keep_r], refract_weight[:, keep_t]), axis=1),
                 slot=np.concatenate((slot[keep_r], slot[keep_t])),
                 state=np.concatenate((live.state[hit_idx][keep_r], live.state[hit_idx][keep_t])),
                 depth=np.concatenate((depth[keep_r], depth[keep_t])),
                 time=None if time is None else np.concatenate((time[keep_r], time[keep_t])),
             )
+        return True
+
+    chunk = max(1, capacity // CHUNK_FRACTION)
+    todo = [(start, min(job.size, start + chunk)) for start in range(0, job.size, chunk)][::-1]
+    while todo:  # a stack, first chunk on top; a chunk that outgrew the capacity comes back as two halves
+        start, stop = todo.pop()
+        if not trace_chunk(start, stop):
+            middle = (start + stop) // 2
+            todo += [(middle, stop), (start, middle)]
+        elif should_stop is not None and should_stop():
+            break
     return radiance
