@@ -9,7 +9,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from wavefront import Lambertian, Scene, Sphere, cli
+from wavefront import Lambertian, RenderSettings, Scene, Sphere, cli
 from wavefront.film import CheckpointError, Film, _feed, load_checkpoint, save_checkpoint, scene_fingerprint
 
 from .test_cli import SMALL, run
@@ -91,6 +91,49 @@ def test_hostile_checkpoints_are_refused_from_their_headers(tmp_path, arrays):
     hostile_checkpoint(ck, scene, **arrays)
     with pytest.raises(CheckpointError):
         load_checkpoint(str(ck), scene, units_total=10)
+
+
+def test_checkpoints_whose_counts_contradict_their_units_done_are_refused(tmp_path):
+    """Counts follow from units_done and the plan: a pixel has at most the samples
+    its done units give it (fewer only where non-finite samples were dropped), and a
+    pixel without samples has zero sums.  A reviewer's tampered files were accepted:
+    units_done 0 with counts and sums (the resume added on top of them)."""
+    from wavefront.units import UnitPlan
+
+    scene = tiny_scene(render=RenderSettings(samples_per_pixel=8))
+    plan = UnitPlan(4, 3, 8)
+    ck = tmp_path / "bad.npz"
+    for done in range(len(plan) + 1):
+        full = np.zeros((3, 4), dtype=np.uint32)
+        for rows, columns, samples in plan.samples_by_region(done):
+            full[rows, columns] = samples
+        assert full.sum() == plan.samples_before(done)
+        hostile_checkpoint(ck, scene, units_done=np.int64(done), count=full.ravel(), sum=np.ones((3, 12)) * full.ravel())
+        assert load_checkpoint(str(ck), scene, units_total=len(plan))[1] == done
+        if done < len(plan):
+            more = full.ravel() + 1
+            hostile_checkpoint(ck, scene, units_done=np.int64(done), count=more, sum=np.ones((3, 12)))
+            with pytest.raises(CheckpointError, match=f"more samples than the {done} units"):
+                load_checkpoint(str(ck), scene, units_total=len(plan))
+    hostile_checkpoint(ck, scene, units_done=np.int64(1), count=np.zeros(12, dtype=np.uint32), sum=np.ones((3, 12)))
+    with pytest.raises(CheckpointError, match="without samples has a non-zero sum"):
+        load_checkpoint(str(ck), scene, units_total=len(plan))
+
+
+def test_a_resumed_film_without_samples_says_so(tmp_path):
+    """A finished checkpoint emptied of its samples resumes to a black image, and the
+    summary counts the pixels without samples even though the render is complete."""
+    scene_file = SCENES / "three_spheres.yaml"
+    ck, out = tmp_path / "ck.npz", tmp_path / "out.npy"
+    args = ("--width", 8, "--height", 4, "--spp", 1, "--max-depth", 3)
+    assert run("render", scene_file, "-o", out, "--checkpoint", ck, *args).returncode == 0
+    with np.load(ck) as z:
+        members = {name: z[name] for name in z.files}
+    members["count"][:] = 0
+    members["sum"][:] = 0
+    np.savez(ck, **members)
+    r = run("render", scene_file, "-o", out, "--resume", ck, *args)
+    assert r.returncode == 0 and "32 pixels without samples" in r.stderr, r.stderr
 
 
 @pytest.mark.parametrize("kind", ["npy", "png", "text", "empty"])

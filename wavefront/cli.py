@@ -608,6 +608,8 @@ def summary_line(scene, s, output: str, timing: Timing | None = None) -> str:
         parts.append(f"PARTIAL ({s.units_done}/{s.units_total} units"
                      + (f", {s.pixels_without_samples} pixels without samples" if s.pixels_without_samples else "")
                      + ")")
+    elif s.pixels_without_samples:  # every sample of a pixel dropped (or a checkpoint's, resumed)
+        parts.append(f"{s.pixels_without_samples} pixels without samples")
     return ", ".join(parts)
 
 

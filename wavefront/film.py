@@ -18,7 +18,7 @@ import tempfile
 
 import numpy as np
 
-from .units import Unit
+from .units import Unit, UnitPlan
 from .validation import first_line
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -220,4 +220,13 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
     if arrays["count"].size and int(arrays["count"].max()) > scene.render.samples_per_pixel:
         raise CheckpointError(f"{path}: not a wavefront checkpoint (a pixel has more samples than "
                               f"{scene.render.samples_per_pixel} per pixel)")
+    # ... nor more than the units done give it (a pixel may have fewer: non-finite samples are
+    # dropped), and a pixel without samples has nothing in its sums
+    count = arrays["count"].reshape(scene.height, scene.width)
+    plan = UnitPlan(scene.width, scene.height, scene.render.samples_per_pixel)
+    if any((count[rows, columns] > samples).any() for rows, columns, samples in plan.samples_by_region(units_done)):
+        raise CheckpointError(f"{path}: not a wavefront checkpoint (a pixel has more samples than the "
+                              f"{units_done} units it has done give it)")
+    if ((arrays["count"] == 0) & (arrays["sum"] != 0.0).any(axis=0)).any():
+        raise CheckpointError(f"{path}: not a wavefront checkpoint (a pixel without samples has a non-zero sum)")
     return Film(scene.width, scene.height, arrays["sum"], arrays["count"]), units_done  # no second copy

@@ -114,6 +114,18 @@ class UnitPlan:
     def __iter__(self):
         return (self[i] for i in range(len(self)))
 
+    def samples_by_region(self, i: int) -> list[tuple[slice, slice, int]]:
+        """How many samples each pixel has from units ``0 .. i - 1``, as
+        ``(rows, columns, samples)`` rectangles that cover the image."""
+        k, tile = divmod(i, self.tiles)
+        base = min(self.samples_per_pixel, self.pass_start(k))
+        more = min(self.samples_per_pixel, self.pass_start(k + 1))  # tiles already done in pass k
+        ty, tx = divmod(tile, self.tiles_x)
+        y0, y1, x0 = min(self.height, ty * TILE), min(self.height, (ty + 1) * TILE), min(self.width, tx * TILE)
+        every = slice(0, self.width)
+        return [(slice(0, y0), every, more), (slice(y0, y1), slice(0, x0), more),
+                (slice(y0, y1), slice(x0, self.width), base), (slice(y1, self.height), every, base)]
+
     def samples_before(self, i: int) -> int:
         """Samples in units ``0 .. i - 1``, without visiting them."""
         k, tile = divmod(i, self.tiles)
