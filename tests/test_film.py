@@ -51,6 +51,22 @@ def test_fingerprint_covers_the_sampler():
     assert scene_fingerprint(scene) != scene_fingerprint(scene.with_overrides(sampler="independent"))
 
 
+def test_fingerprint_leaves_out_the_name_so_a_renamed_scene_file_resumes(tmp_path):
+    """The name (metadata, the file's stem by default) decides nothing in the image."""
+    scene = tiny_scene()
+    assert scene_fingerprint(scene.replace(name="renamed")) == scene_fingerprint(scene)
+    assert scene_fingerprint(scene.with_overrides(seed=3)) != scene_fingerprint(scene)
+    ck, out = tmp_path / "ck.npz", tmp_path / "out.npy"
+    first, second = tmp_path / "first.yaml", tmp_path / "second.yaml"
+    first.write_text((SCENES / "three_spheres.yaml").read_text())
+    second.write_text(first.read_text())
+    args = ("--width", 8, "--height", 4, "--spp", 1, "--max-depth", 3)
+    assert run("render", first, "-o", out, "--checkpoint", ck, *args).returncode == 0
+    r = run("render", second, "-o", tmp_path / "again.npy", "--resume", ck, *args)
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_array_equal(np.load(tmp_path / "again.npy"), np.load(out))
+
+
 def test_round_trip_and_refusals(tmp_path):
     scene = tiny_scene()
     film = Film(4, 3)

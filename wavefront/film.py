@@ -86,6 +86,8 @@ def _feed(h, value) -> None:
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         h.update(b"D" + type(value).__qualname__.encode() + b"\0")
         for f in dataclasses.fields(value):
+            if not f.metadata.get("fingerprint", True):  # metadata that never reaches the image
+                continue
             h.update(f.name.encode() + b"=")
             _feed(h, getattr(value, f.name))
     elif isinstance(value, np.ndarray):
@@ -119,7 +121,9 @@ def _feed(h, value) -> None:
 def scene_fingerprint(scene) -> str:
     """SHA-256 of everything that decides the image: the scene's whole
     canonical content (every field, every array element, floats exactly),
-    image size, samples, seed, and the checkpoint format's version."""
+    image size, samples, seed, and the checkpoint format's version.  Not its
+    ``name`` (metadata, by default the file's name): a checkpoint resumes
+    under a renamed or copied scene file."""
     h = hashlib.sha256(b"wavefront-checkpoint-%d\0" % CHECKPOINT_VERSION)
     _feed(h, scene)
     return h.hexdigest()

@@ -223,7 +223,8 @@ class Scene:
     background: Background = field(default_factory=Sky)
     lights: tuple[PointLight, ...] = ()
     ambient: RGB = (0.0, 0.0, 0.0)
-    name: str = "scene"
+    # metadata only: not part of the checkpoint fingerprint (see film.scene_fingerprint)
+    name: str = field(default="scene", metadata={"fingerprint": False})
     quads: list[Quad] = field(default_factory=list)
     triangles: list[Triangle] = field(default_factory=list)
     meshes: list[Mesh] = field(default_factory=list)
