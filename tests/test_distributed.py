@@ -79,3 +79,19 @@ def test_cli_local_cluster_and_turntable_frames(tmp_path, scene):
                     workers=1)
     np.testing.assert_array_equal(frames[0], single)  # frame 0 is the scene's own camera
     assert not np.array_equal(frames[1], frames[0])
+
+
+def test_a_local_cluster_is_held_to_the_budget(tmp_path):
+    """A reviewer's local:2 under --memory 128M ran (the tree at 209 MiB; each worker
+    was given 64 MiB and the parent nothing), and local:1 under 64M started the
+    cluster before refusing.  Now the cluster is refused before it starts unless its
+    processes fit beside this one, and the render plans its wavefronts for the
+    workers that run it: the summary's peak stays within the budget."""
+    r = run("render", SCENES / "final_scene.yaml", "-o", tmp_path / "x.npy", "--width", 200, "--height", 112,
+            "--spp", 2, "--scheduler", "local:2", "--memory", "128M")
+    assert r.returncode == 2 and "does not fit" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.npy").exists()
+    r = run("render", SCENES / "final_scene.yaml", "-o", tmp_path / "x.npy", "--width", 200, "--height", 112,
+            "--spp", 2, "--scheduler", "local:2", "--memory", "320M")
+    assert r.returncode == 0, r.stderr
+    assert int(r.stderr.split("peak memory ")[1].split()[0]) <= 320, r.stderr

@@ -113,7 +113,7 @@ def test_a_local_cluster_is_bounded_by_the_budget_and_bad_addresses_are_one_line
     pytest.importorskip("dask.distributed")
     from wavefront.distributed import SchedulerError, connect
 
-    with pytest.raises(SchedulerError, match="at most local:16"):
+    with pytest.raises(SchedulerError, match=r"at most local:\d+$"):
         connect("local:99999999999999999999", memory=1 << 30)
     with pytest.raises(SchedulerError, match="cannot connect"):
         connect("tls://127.0.0.1:9")
@@ -124,7 +124,7 @@ def checkpoint(tmp_path):
                   camera=Camera(), width=4, height=4, render=RenderSettings(samples_per_pixel=2))
     film = Film(4, 4)
     film.sum[:] = 1.0
-    film.count[:] = 2
+    film.count[:] = 1  # what its one unit done (pass 0: 1 spp) gives each pixel
     path = str(tmp_path / "ck.npz")
     save_checkpoint(path, scene, film, 1)
     return scene, path

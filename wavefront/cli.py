@@ -414,14 +414,14 @@ def _render(args, signals: _Signals, started: float) -> int:
 
     executor, client, workers = None, None, args.workers
     if args.scheduler is not None:
-        from .distributed import SchedulerError, connect, dask_executor
+        from .distributed import SchedulerError, connect, dask_executor, local_worker_count
 
         try:
             client = connect(args.scheduler, memory)
         except SchedulerError as e:
             _say(f"wavefront: error: {e}")
             return EXIT_BAD_INPUT
-        executor = dask_executor(client)
+        executor = dask_executor(client, local_workers=local_worker_count(args.scheduler))
         workers = max(1, len(client.scheduler_info().get("workers", {})))
 
     samples_per_frame = scene.width * scene.height * scene.render.samples_per_pixel

@@ -22,9 +22,14 @@ from .sampling import scene_key
 from .validation import first_line
 
 CONNECT_TIMEOUT = "5s"  # an address that does not answer is reported within seconds
-# A local Dask worker is a process of its own: 63 MiB at rest, measured
-# (interpreter, NumPy, Dask), before it holds a scene or a wavefront.
-LOCAL_WORKER_BYTES = 64 * 1024 * 1024
+# A local Dask worker is a process of its own: 61-63 MiB at rest, measured
+# (interpreter, NumPy, Dask), and ~7 MiB more once it has imported wavefront,
+# before it holds a scene or a wavefront.
+LOCAL_WORKER_BYTES = 80 * 1024 * 1024  # (and some room: the tree peaked 204 MiB under 200M at 72)
+# ... and a LocalCluster adds to the parent: Dask's modules (~45 MiB) and
+# multiprocessing's resource tracker, a process of its own (~12 MiB).
+LOCAL_CLUSTER_BYTES = 64 * 1024 * 1024
+LOCAL_TRACKER_BYTES = 16 * 1024 * 1024
 
 
 class SchedulerError(ConnectionError):
@@ -49,10 +54,18 @@ def connect(scheduler: str, memory: int | None = None):
                 raise ValueError
         except ValueError:
             raise SchedulerError(f"{scheduler}: expected local:N with N >= 1 workers") from None
-        if memory is not None and n * LOCAL_WORKER_BYTES > memory:
-            raise SchedulerError(f"{scheduler}: {n} local workers need at least {LOCAL_WORKER_BYTES >> 20} MiB each, "
-                                 f"more than the memory budget of {memory >> 20} MiB (--memory) holds; "
-                                 f"at most local:{max(1, memory // LOCAL_WORKER_BYTES)}")
+        if memory is not None:  # checked before the cluster starts: its processes are in the budget
+            from .memory import current_rss
+
+            spare = memory - current_rss() - LOCAL_CLUSTER_BYTES
+            if n * LOCAL_WORKER_BYTES > spare:
+                fits = max(0, spare // LOCAL_WORKER_BYTES)
+                raise SchedulerError(
+                    f"{scheduler}: {n} local worker{'s' if n > 1 else ''} need{'' if n > 1 else 's'} at least "
+                    f"{LOCAL_WORKER_BYTES >> 20} MiB{' each' if n > 1 else ''} and the "
+                    f"cluster {LOCAL_CLUSTER_BYTES >> 20} MiB beside this process, more than the memory budget of "
+                    f"{memory >> 20} MiB (--memory) holds; "
+                    + (f"at most local:{fits}" if fits else "a local cluster does not fit in it"))
         import logging
 
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
@@ -62,6 +75,11 @@ def connect(scheduler: str, memory: int | None = None):
         return Client(scheduler, timeout=CONNECT_TIMEOUT)
     except Exception as e:  # noqa: BLE001 (Dask's comm layers raise many types: TypeError for tls:// without a context)
         raise SchedulerError(f"{scheduler}: cannot connect to the Dask scheduler ({first_line(e)})") from None
+
+
+def local_worker_count(scheduler: str) -> int:
+    """N for ``local:N`` (a scheduler :func:`connect` accepted), else 0."""
+    return int(scheduler.split(":", 1)[1]) if scheduler.startswith("local:") else 0
 
 
 _COMPILED: dict = {}
@@ -78,8 +96,13 @@ def _remote_execute(scene, token: str, capacity: int, units):
     return execute(_COMPILED["compiled"], _COMPILED["key"], capacity, units)
 
 
-def dask_executor(client):
-    """An ``executor`` for :func:`wavefront.render.render_scene` running on ``client``."""
+def dask_executor(client, local_workers: int = 0):
+    """An ``executor`` for :func:`wavefront.render.render_scene` running on ``client``.
+
+    ``local_workers``: the client's cluster is a LocalCluster of that many
+    processes (see :func:`connect`), which are in this process tree: the
+    render plans its memory budget for them (their peaks come back with
+    their tasks' results, as a process pool's do)."""
     from dask.distributed import wait
 
     def run(scene, capacity, tasks, merge, stopped):
@@ -122,4 +145,7 @@ def dask_executor(client):
             client.cancel(list(remaining))
             client.cancel(scene_future)
 
+    # what render_scene plans for: the workers, and beside this process (whose own
+    # resident memory already holds Dask's modules) the resource tracker
+    run.local_workers, run.worker_bytes, run.cluster_bytes = local_workers, LOCAL_WORKER_BYTES, LOCAL_TRACKER_BYTES
     return run

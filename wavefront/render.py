@@ -157,12 +157,14 @@ class MemoryPlan:
 
 
 def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int, film: int,
-                per_worker: int, output: int) -> MemoryPlan:
+                per_worker: int, output: int, fixed_workers: bool = False) -> MemoryPlan:
     """Workers and wavefront size that fit ``memory`` bytes, the most workers first.
 
     An explicit ``chunk_size`` is kept (fewer workers are used if need be);
     otherwise the wavefront is as large as fits, up to ``MAX_CAPACITY``, and
-    a worker is dropped rather than run one below ``GOOD_CAPACITY``.
+    a worker is dropped rather than run one below ``GOOD_CAPACITY``.  With
+    ``fixed_workers`` (processes that are already running) only ``workers``
+    is planned for.
 
     Raises
     ------
@@ -171,7 +173,7 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
         message gives the estimate.
     """
     fallback = None
-    for w in range(workers, 0, -1):
+    for w in range(workers, workers - 1 if fixed_workers else 0, -1):
         plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
         if chunk_size is None:
             spare = memory - plan.peak
@@ -188,8 +190,10 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
             fallback = fallback or plan
     if fallback is not None:
         return fallback
-    smallest = MemoryPlan(1, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
+    smallest = MemoryPlan(workers if fixed_workers else 1, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
     parts = [f"the process and scene {_mib(base)}"]
+    if smallest.workers > 1:
+        parts.append(f"{smallest.workers} worker processes {_mib(smallest.workers * per_worker)}")
     if film:
         parts.append(f"the film {_mib(film)}")
     if smallest.peak == smallest.base + smallest.film + output:
@@ -478,10 +482,20 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     release_free_memory()
     base = current_rss()
     load_peak = phase_peak()  # loading and compiling; from here on the parent's peak is the render's
-    budget = plan_memory(
-        memory, 1 if executor is not None else requested, chunk_size, base=base,
-        film=0 if resume is not None else pixels * FILM_BYTES_PER_PIXEL, per_worker=base,
-        output=pixels * 3 * 4 if output_bytes is None else output_bytes)
+    # An executor's workers on this machine (a Dask LocalCluster: ``local_workers``
+    # processes of ``worker_bytes`` at rest, plus ``cluster_bytes`` beside them) are in
+    # this process tree and inside the budget: each holds the scene, compiled, and a
+    # wavefront.  A remote cluster's memory is its own: the parent plans for itself.
+    local = getattr(executor, "local_workers", 0) if executor is not None else 0
+    film_bytes = 0 if resume is not None else pixels * FILM_BYTES_PER_PIXEL
+    output = pixels * 3 * 4 if output_bytes is None else output_bytes
+    if local:
+        budget = plan_memory(memory, local, chunk_size, base=base + executor.cluster_bytes, film=film_bytes,
+                             per_worker=executor.worker_bytes + compile_bytes(scene)[0], output=output,
+                             fixed_workers=True)
+    else:
+        budget = plan_memory(memory, 1 if executor is not None else requested, chunk_size, base=base,
+                             film=film_bytes, per_worker=base, output=output)
     capacity = budget.capacity
     workers = requested if executor is not None else budget.workers
     # Units are merged strictly in order, so "the first k units" describes
@@ -546,7 +560,9 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     if checkpoint is not None:
         save()
     worker_peaks.pop(os.getpid(), None)  # inline tasks ran in this process
-    stats.peak_memory = max(load_peak, phase_peak(reset=False) + sum(worker_peaks.values()))
+    # a local cluster's workers report their peaks with their results; beside them, its tracker
+    stats.peak_memory = max(load_peak, phase_peak(reset=False) + sum(worker_peaks.values())
+                            + (executor.cluster_bytes if local else 0))
     stats.pixels_without_samples = film.pixels_without_samples
     release_free_memory()  # the wavefront's temporaries, before the image is written
     stats.elapsed = time.perf_counter() - start
