@@ -539,6 +539,7 @@ def _write_or_rescue(out: str, film, metadata) -> tuple[str | None, str | None]:
     full disk or a directory removed while it ran.
     """
     from .output import OutputError, write_image
+    from .validation import first_line
 
     try:
         write_image(out, film, metadata)
@@ -547,6 +548,8 @@ def _write_or_rescue(out: str, film, metadata) -> tuple[str | None, str | None]:
         problem = f"cannot write the image: {e}"
     except OSError as e:
         problem = f"{out}: cannot write the image: {e.strerror or e}"
+    except Exception as e:  # an encoder's own failure (Pillow, OpenEXR): the render is still not lost
+        problem = f"{out}: cannot write the image: {first_line(e)}"
     ext = os.path.splitext(out)[1].lower()
     for directory in dict.fromkeys((tempfile.gettempdir(), os.getcwd(), os.path.expanduser("~"))):
         for suffix in dict.fromkeys((ext, ".npy")):
@@ -559,7 +562,7 @@ def _write_or_rescue(out: str, film, metadata) -> tuple[str | None, str | None]:
             try:
                 write_image(rescue, film, metadata)
                 return rescue, f"{problem}; the image was saved to {rescue} instead"
-            except (OSError, OutputError):
+            except Exception:  # noqa: BLE001 - the next place, and at last .npy, which needs no encoder
                 with contextlib.suppress(OSError):
                     os.unlink(rescue)
     return None, f"{problem}; no other place to save the image was writable either"

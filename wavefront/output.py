@@ -291,7 +291,7 @@ def write_image(path: str, image, metadata: dict[str, str] | None = None) -> Non
     ``metadata`` goes into PNG text chunks and EXR header attributes.
     """
     ext = output_format(path)
-    metadata = {k: str(v) for k, v in (metadata or {}).items()}
+    metadata = {k: metadata_text(v) for k, v in (metadata or {}).items()}
     target = resolve_target(path)
     fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(), suffix=ext, dir=os.path.dirname(target))
     try:
@@ -307,6 +307,28 @@ def write_image(path: str, image, metadata: dict[str, str] | None = None) -> Non
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+# NUL ends a C string (OpenEXR's attributes) and is forbidden in PNG text
+# chunks; the other C0 controls but tab and newline are "discouraged" there
+_UNWRITABLE = re.compile("[\x00-\x08\x0b-\x1f\x7f]")
+
+
+def metadata_text(value) -> str:
+    """``str(value)`` as text every image format can hold: a file name's
+    undecodable bytes (``os.fsdecode``'s surrogates, from a non-UTF-8 path)
+    shown as ``\\xff``, NUL and other control characters as escapes.
+
+    Valid text without control characters is unchanged; Pillow stores text
+    that is not Latin-1 in an iTXt (UTF-8) chunk instead of tEXt.
+    """
+    text = str(value)
+    try:
+        data = text.encode("utf-8", "surrogateescape")  # the bytes a path's surrogates stand for
+    except UnicodeEncodeError:  # a surrogate no decoding made
+        data = text.encode("utf-8", "backslashreplace")
+    text = data.decode("utf-8", "backslashreplace")
+    return _UNWRITABLE.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
 def publish(tmp: str, target: str, shown: str | None = None) -> None:
@@ -368,7 +390,13 @@ def _write_exr(path, image, metadata) -> None:
     channels = {"RGB": np.ascontiguousarray(rows(0, height), dtype=np.float32)}
     try:
         with OpenEXR.File(header, channels) as exr:
-            exr.write(path)
+            try:
+                path.encode()
+            except UnicodeEncodeError:  # a directory name that is not UTF-8: OpenEXR takes only text paths
+                with open(path, "wb") as f:
+                    exr.write(f)
+            else:
+                exr.write(path)
     except RuntimeError as e:  # OpenEXR's way of saying the disk is full or the file unwritable
         raise OSError(errno.EIO, str(e).splitlines()[0] if str(e) else "OpenEXR could not write the file") from None
 

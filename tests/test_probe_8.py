@@ -1,0 +1,127 @@
+"""Hostile probes of session 8 (notes/probe8.md): each test is a defect
+found by probing the command line, fixed with it."""
+
+import os
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+from wavefront.output import read_png_metadata
+
+from .test_cli import run
+
+BASE = """image: {width: 16, height: 9}
+render: {samples_per_pixel: 1, max_depth: 3}
+materials:
+  m: {type: lambertian, albedo: [0.5, 0.5, 0.5]}
+spheres:
+  - {center: [0, 0, -1], radius: 0.5, material: m}
+"""
+HEAD = "image: {width: 16, height: 9}\nrender: {samples_per_pixel: 1, max_depth: 3}\n"
+
+
+def run_bytes(*args, cwd=None):
+    """The command with arguments that may be bytes (file names that are not UTF-8)."""
+    return subprocess.run([sys.executable.encode(), b"-m", b"wavefront", *(a if isinstance(a, bytes) else os.fsencode(str(a)) for a in args)],
+                          capture_output=True, cwd=cwd, timeout=300)
+
+
+def write_scene(tmp_path, text, name="scene.yaml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def refused(r, *needles, outputs=()):
+    """Exit status 2, one line naming each needle, no traceback, nothing written."""
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    for needle in needles:
+        assert needle in r.stderr, r.stderr
+    for out in outputs:
+        assert not os.path.exists(out), out
+
+
+def png_chunks(path):
+    data = open(path, "rb").read()
+    pos, chunks = 8, []
+    while pos < len(data):
+        (length,), kind = np.frombuffer(data[pos:pos + 4], ">u4"), data[pos + 4:pos + 8]
+        chunks.append((kind, data[pos + 8:pos + 8 + int(length)]))
+        pos += 12 + int(length)
+    return chunks
+
+
+# --- 1: a scene whose path is not UTF-8 --------------------------------------
+
+@pytest.mark.parametrize("ext", ["png", "exr", "npy"])
+def test_a_scene_path_that_is_not_utf8_renders_to_every_format(tmp_path, ext):
+    folder = os.path.join(os.fsencode(tmp_path), b"\xffdir")
+    os.mkdir(folder)
+    with open(os.path.join(folder, b"\xff\xfe.yaml"), "w") as f:
+        f.write(BASE)
+    out = os.path.join(folder, b"\xfeout." + ext.encode())
+    ck = os.path.join(folder, b"\xfeck.npz")
+    r = run_bytes("render", os.path.join(folder, b"\xff\xfe.yaml"), "-o", out, "--checkpoint", ck, "-q")
+    assert r.returncode == 0 and r.stderr == b"", r.stderr
+    assert os.path.exists(out) and os.path.exists(ck)
+    if ext == "png":
+        assert read_png_metadata(os.fsdecode(out))["wavefront.scene"] == "\\xff\\xfe"
+    again = os.path.join(folder, b"again.npy")
+    r = run_bytes("render", os.path.join(folder, b"\xff\xfe.yaml"), "-o", again, "--resume", ck, "-q")
+    assert r.returncode == 0, r.stderr
+
+
+def test_texture_and_mesh_paths_that_are_not_utf8_reach_the_checkpoint(tmp_path):
+    folder = os.path.join(os.fsencode(tmp_path), b"\xffdir")
+    os.mkdir(folder)
+    import imageio.v3 as iio
+
+    iio.imwrite(os.fsdecode(os.path.join(folder, b"tiny.png")), np.full((2, 2, 3), 128, np.uint8))
+    with open(os.path.join(folder, b"tri.obj"), "w") as f:
+        f.write("v 0 0 -2\nv 1 0 -2\nv 0 1 -2\nf 1 2 3\n")
+    with open(os.path.join(folder, b"scene.yaml"), "w") as f:
+        f.write(HEAD + "materials: {m: {type: lambertian, albedo: {type: image, file: tiny.png}}}\n"
+                "spheres: [{center: [0,0,-1], radius: 0.5, material: m}]\nmeshes: [{file: tri.obj, material: m}]\n")
+    r = run_bytes("render", os.path.join(folder, b"scene.yaml"), "-o", os.path.join(folder, b"x.npy"),
+                  "--checkpoint", os.path.join(folder, b"ck.npz"), "-q")
+    assert r.returncode == 0, r.stderr
+
+
+def test_an_encoder_failing_after_the_render_does_not_lose_the_image(tmp_path, monkeypatch, capsys):
+    from wavefront import cli, output
+
+    def broken(f, image, metadata):
+        raise ValueError("the encoder broke")
+
+    monkeypatch.setattr(output, "_write_png", broken)
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    scene = write_scene(tmp_path, BASE)
+    status = cli.main(["render", str(scene), "-o", str(tmp_path / "x.png"), "-q", "--workers", "1"])
+    err = capsys.readouterr().err
+    assert status == 2 and "the encoder broke" in err and "saved to" in err, err
+    rescued = list(tmp_path.glob("wavefront-rescued-*.npy"))
+    assert len(rescued) == 1 and np.load(rescued[0]).shape == (9, 16, 3)
+
+
+# --- 16: PNG text chunks ------------------------------------------------------
+
+def test_png_text_holds_no_nul_and_unicode_goes_to_itxt(tmp_path):
+    scene = write_scene(tmp_path, 'name: "a\\nb\\u0000c \\u00e9\\u20ac"\n' + BASE)
+    out = tmp_path / "x.png"
+    r = run("render", scene, "-o", out, "-q")
+    assert r.returncode == 0, r.stderr
+    for kind, data in png_chunks(out):
+        if kind == b"tEXt":
+            key, _, text = data.partition(b"\0")
+            assert b"\0" not in text
+            text.decode("latin-1")
+        elif kind == b"iTXt":
+            key, _, rest = data.partition(b"\0")
+            text = rest[2:].split(b"\0", 2)[2]
+            assert b"\0" not in text
+            text.decode("utf-8")
+    assert read_png_metadata(out)["wavefront.scene"] == "a\nb\\x00c \u00e9\u20ac"
