@@ -125,3 +125,65 @@ def test_png_text_holds_no_nul_and_unicode_goes_to_itxt(tmp_path):
             assert b"\0" not in text
             text.decode("utf-8")
     assert read_png_metadata(out)["wavefront.scene"] == "a\nb\\x00c \u00e9\u20ac"
+
+
+# --- 3: huge media boundaries ---------------------------------------------------
+
+MEDIA_HEAD = HEAD + "materials: {m: {type: lambertian}}\n"
+
+
+@pytest.mark.parametrize("sphere", ["{center: [0,0,0], radius: 1e120}",
+                                    "{center: [0,0,0], radius: 1e50, transform: [{scale: 1e60}]}"])
+def test_a_medium_sphere_beyond_float64_volume_renders(tmp_path, sphere):
+    scene = write_scene(tmp_path, MEDIA_HEAD + f"media: [{{boundary: {{sphere: {sphere}}}, density: 0.01}}]\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy", "-q", "--workers", 1)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert np.isfinite(np.load(tmp_path / "x.npy")).all()
+
+
+@pytest.mark.parametrize("extent,problem", [("1e80", "box too large: a face's area squared overflows"),
+                                            ("1e150", "box too large: an edge (max - min) must be <= 1e+150")])
+def test_a_huge_medium_box_is_refused_at_load_naming_its_yaml_path(tmp_path, extent, problem):
+    scene = write_scene(tmp_path, MEDIA_HEAD + f"media: [{{boundary: {{box: {{min: [-{extent}, -{extent}, "
+                                               f"-{extent}], max: [{extent}, {extent}, {extent}]}}}}, density: 0.01}}]\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy")
+    refused(r, "scene.yaml: media[0].boundary.box: " + problem, outputs=[tmp_path / "x.npy"])
+
+
+def test_media_order_by_volume_survives_overflow_and_keeps_its_order():
+    from wavefront import Box, Medium, Sphere
+    from wavefront.media import boundary_log_volume, boundary_volume, volume_order
+    from wavefront.shapes import Mesh
+
+    trimesh = pytest.importorskip("trimesh")
+    cube = trimesh.creation.box(bounds=[(-1, -2, -3), (2, 1, 1)])
+    small = [Medium(Sphere((0, 0, 0), 2.5, 0), 1.0), Medium(Box((0, 0, 0), (1, 2, 3), 0, [{"scale": 2}]), 1.0),
+             Medium(Mesh(np.asarray(cube.vertices), np.asarray(cube.faces), 0, transform=[{"scale": 3}]), 1.0)]
+    for m in small:  # the logarithm agrees with the volume
+        assert boundary_log_volume(m) == pytest.approx(np.log(boundary_volume(m)), rel=1e-12)
+    np.testing.assert_array_equal(volume_order(small), [boundary_volume(m) for m in small])
+    huge = small + [Medium(Sphere((0, 0, 0), 1e120, 0), 1.0), Medium(Sphere((0, 0, 0), 1e110, 0), 1.0)]
+    keys = volume_order(huge)
+    assert np.isfinite(keys).all() and list(np.argsort(keys)) == [1, 0, 2, 4, 3]  # 48, 65, 972, 4e330, 4e360
+
+
+def test_the_api_renders_a_huge_medium_sphere():
+    from wavefront import Camera, Lambertian, Medium, RenderSettings, Scene, Sphere, render
+
+    scene = Scene(materials={"m": Lambertian((0.5, 0.5, 0.5))}, width=4, height=4,
+                  camera=Camera(look_from=(0, 0, 0), look_at=(0, 0, -1)),
+                  render=RenderSettings(samples_per_pixel=1, max_depth=2),
+                  media=[Medium(Sphere((0, 0, 0), 1e120, 0), 0.01)])
+    assert np.isfinite(render(scene, workers=1)).all()
+
+
+# --- 10: huge boxes -------------------------------------------------------------
+
+@pytest.mark.parametrize("extent,problem", [("1e100", "box too large: a face's area squared overflows"),
+                                            ("1e150", "box too large: an edge (max - min) must be <= 1e+150")])
+def test_a_huge_box_is_refused_naming_the_file_and_its_yaml_path(tmp_path, extent, problem):
+    scene = write_scene(tmp_path, MEDIA_HEAD + "boxes: [{min: [0, 0, 0], max: [1, 1, 1], material: m}, "
+                                               f"{{min: [-{extent}, -{extent}, -{extent}], max: [{extent}, {extent}, "
+                                               f"{extent}], material: m}}]\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy")
+    refused(r, "scene.yaml: boxes[1]: " + problem, outputs=[tmp_path / "x.npy"])

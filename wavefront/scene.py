@@ -36,7 +36,7 @@ from .camera import Camera
 from .geometry import FLOAT32_EXTENT, FLOAT32_MAX_REACH, Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
-from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, boundary_volume, contains
+from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, contains, volume_order
 from .sampling import SAMPLERS
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
@@ -429,7 +429,7 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
     if not scene.media:
         return None
     dtype = primitives.dtype
-    volume = np.array([boundary_volume(m) for m in scene.media])
+    volume = volume_order(scene.media)
     medium_of_bit = np.lexsort((np.arange(volume.size), -volume))  # ties: the one listed last gets the higher bit
     bit_of = np.empty_like(medium_of_bit)
     bit_of[medium_of_bit] = np.arange(volume.size)

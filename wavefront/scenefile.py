@@ -44,7 +44,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
     MATERIAL_TYPES, MAX_DEPTH, MAX_PIXELS, MAX_SAMPLES_PER_PIXEL, MAX_SEED, PointLight, RenderSettings, Scene,
     unknown_material,
 )
-from .media import Medium
+from .media import Medium, box_faces
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
 from .memory import LOAD_BYTES_PER_FILE_BYTE, MemoryBudgetError, check_budget, current_rss, refuse_unless_fits
 from .textures import image_load_bytes, images_shared
@@ -614,8 +614,11 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
     spheres = _spheres(source, spheres_doc if spheres_doc is not None else [], defined, consume)
     del spheres_doc
     quads = _shapes(source, top.get("quads"), "quads", Quad, defined)
-    for box in _shapes(source, top.get("boxes"), "boxes", Box, defined):
-        quads.extend(box.quads())
+    for i, box in enumerate(_shapes(source, top.get("boxes"), "boxes", Box, defined)):
+        try:
+            quads.extend(box_faces(box, box, ""))
+        except SceneError as e:
+            raise e.within(source, f"boxes[{i}]") from None
     triangles = _shapes(source, top.get("triangles"), "triangles", Triangle, defined)
     meshes = _meshes(source, top.get("meshes"), defined, memory)
     media = _media(source, top.get("media"), memory, faces=sum(m.faces.shape[0] for m in meshes))
@@ -828,6 +831,10 @@ def _media(source: str, docs, memory: int | None = None, faces: int = 0) -> list
             boundary = _build(source, where, Sphere, shape_doc, material=_BOUNDARY_MATERIAL)
         elif kind == "box":
             boundary = _build(source, where, Box, shape_doc, material=_BOUNDARY_MATERIAL)
+            try:
+                box_faces(boundary, boundary, "")
+            except SceneError as e:
+                raise e.within(source, where) from None
         else:
             boundary = _boundary_mesh(source, where, shape_doc, base, memory, mesh_files.MAX_MESH_FACES - faces)
             faces += boundary.faces.shape[0]
