@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .background import Background, Sky, Solid
-from .camera import Camera
+from .camera import Camera, direction
 from .geometry import FLOAT32_EXTENT, FLOAT32_MAX_REACH, Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
@@ -671,8 +671,7 @@ def turntable(scene: Scene, frame: int, frames: int) -> Scene:
     """``scene`` with ``look_from`` turned ``frame / frames`` of a full circle
     around the axis through ``look_at`` along ``vup``."""
     cam = scene.camera
-    axis = np.asarray(cam.vup, dtype=np.float64)
-    axis /= np.linalg.norm(axis)
+    axis = direction(np.asarray(cam.vup, dtype=np.float64))  # any scale: a vup of 1e-300 too
     pivot = np.asarray(cam.look_at, dtype=np.float64)
     v = np.asarray(cam.look_from, dtype=np.float64) - pivot
     angle = 2.0 * np.pi * frame / frames
