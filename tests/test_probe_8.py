@@ -187,3 +187,55 @@ def test_a_huge_box_is_refused_naming_the_file_and_its_yaml_path(tmp_path, exten
                                                f"{extent}], material: m}}]\n")
     r = run("render", scene, "-o", tmp_path / "x.npy")
     refused(r, "scene.yaml: boxes[1]: " + problem, outputs=[tmp_path / "x.npy"])
+
+
+# --- 4: every frame checked before the first is rendered --------------------------
+
+def test_a_frame_whose_camera_leaves_the_range_is_refused_before_any_frame_is_written(tmp_path):
+    scene = write_scene(tmp_path, HEAD + "materials: {m: {type: lambertian}}\n"
+                        "camera: {look_from: [-1e150, 0, 0], look_at: [1e150, 0, 0]}\n"
+                        "spheres: [{center: [1e150, 0, 0], radius: 1e149, material: m}]\n")
+    r = run("render", scene, "-o", tmp_path / "f_{frame}.png", "--frames", 2)
+    refused(r, "scene.yaml: camera.look_from[0]: in frame 1 of --frames 2", outputs=[tmp_path / "f_0.png"])
+
+
+# --- 6: camera vectors of any scale -------------------------------------------------
+
+def camera_image(**camera):
+    from wavefront import render
+    from wavefront.scenefile import scene_from_dict
+    import yaml
+
+    doc = yaml.safe_load(BASE)
+    doc["camera"] = camera
+    return render(scene_from_dict(doc), workers=1)
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("camera,same_as", [
+    ({"vup": [0, 1e200, 0]}, {"vup": [0, 1, 0]}),
+    ({"vup": [0, 1e-200, 0]}, {"vup": [0, 1, 0]}),
+    ({"look_at": [0, 0, -1e-200], "focus_dist": 1}, {"look_at": [0, 0, -1], "focus_dist": 1}),
+])
+def test_huge_or_tiny_camera_vectors_give_the_image_of_unit_ones(camera, same_as):
+    image = camera_image(**camera)
+    assert image.mean() > 0.1
+    np.testing.assert_array_equal(image, camera_image(**same_as))
+
+
+def test_a_turntable_with_a_tiny_vup_renders_every_frame(tmp_path):
+    scene = write_scene(tmp_path, HEAD + "materials: {m: {type: lambertian}}\n"
+                        "camera: {look_from: [0, 0, 1], look_at: [0, 0, 0], vup: [0, 1e-300, 0]}\n"
+                        "spheres: [{center: [0, 0, 0], radius: 0.5, material: m}]\n")
+    r = run("render", scene, "-o", tmp_path / "g_{frame}.npy", "--frames", 4, "-q")
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert all(np.load(tmp_path / f"g_{k}.npy").mean() > 0.1 for k in range(4))
+
+
+def test_a_view_too_small_for_float64_is_refused():
+    from wavefront import Camera, Scene, Sphere, Lambertian
+    from wavefront.validation import SceneError
+
+    with pytest.raises(SceneError, match="camera.look_at: the view is too small"):
+        Scene(materials={"m": Lambertian((0.5, 0.5, 0.5))}, spheres=[Sphere((0, 0, -1), 0.5, "m")],
+              camera=Camera(look_at=(0, 0, -1e-200)))

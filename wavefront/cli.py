@@ -394,7 +394,6 @@ def _render(args, signals: _Signals, started: float) -> int:
     from .film import CheckpointError
     from .output import OutputError, encode_bytes
     from .render import DEFAULT_MEMORY, MemoryBudgetError, RenderError, compile_within, phase_peak, render_scene
-    from .scene import turntable
     from .scenefile import SceneError, load_scene
 
     memory = args.memory or DEFAULT_MEMORY
@@ -404,6 +403,7 @@ def _render(args, signals: _Signals, started: float) -> int:
         scene = load_scene(args.scene, memory=memory)
         scene = _with_flags(scene, args)
         check_not_reading(scene, outputs + ([args.checkpoint] if args.checkpoint is not None else []))
+        frame_scenes = _frame_scenes(scene, args)  # every frame checked before the first is rendered
     except (SceneError, OutputError) as e:
         _say(f"wavefront: error: {e}")
         return EXIT_BAD_INPUT
@@ -433,7 +433,7 @@ def _render(args, signals: _Signals, started: float) -> int:
                    leave=False)
     try:
         for k, out in enumerate(outputs):
-            frame_scene = scene if args.frames is None else turntable(scene, k, args.frames)
+            frame_scene = frame_scenes[k]
 
             def progress(done: int, total: int, offset=k * samples_per_frame) -> None:
                 if bar is not None:
@@ -497,6 +497,28 @@ def _render(args, signals: _Signals, started: float) -> int:
             client.close()
             if client.cluster is not None:
                 client.cluster.close()
+
+
+def _frame_scenes(scene, args) -> list:
+    """The scene of each frame (``--frames``' turntable), each validated as
+    a scene is: a frame whose camera leaves the coordinates' range (or
+    cannot be resolved) is refused before any frame is rendered, naming the
+    scene file, the camera and the frame."""
+    from .scene import turntable
+    from .scenefile import SceneError
+    from .validation import join
+
+    if args.frames is None:
+        return [scene]
+    scenes = []
+    for k in range(args.frames):
+        try:
+            scenes.append(turntable(scene, k, args.frames))
+        except SceneError as e:
+            raise SceneError(args.scene, join("camera", e.path.removeprefix("camera").lstrip(".")),
+                             f"in frame {k} of --frames {args.frames} (look_from turned about look_at): "
+                             f"{e.problem}") from None
+    return scenes
 
 
 def _refuse_unless_loading_fits(path: str, memory: int) -> None:
