@@ -239,3 +239,58 @@ def test_a_view_too_small_for_float64_is_refused():
     with pytest.raises(SceneError, match="camera.look_at: the view is too small"):
         Scene(materials={"m": Lambertian((0.5, 0.5, 0.5))}, spheres=[Sphere((0, 0, -1), 0.5, "m")],
               camera=Camera(look_at=(0, 0, -1e-200)))
+
+
+# --- 5: material names in a scene file are strings -----------------------------------
+
+@pytest.mark.parametrize("shapes,path,got", [
+    ("spheres: [{center: [0, 0, -1], radius: 0.5, material: 1}]", "spheres[0].material", "integer 1"),
+    ("spheres: [{center: [0, 0, -1], radius: 0.5, material: m}, {center: [0, 0, -1], radius: 0.5, material: 0, "
+     "transform: []}]", "spheres[1].material", "integer 0"),
+    ("quads: [{corner: [0, 0, -1], u: [1, 0, 0], v: [0, 1, 0], material: 0}]", "quads[0].material", "integer 0"),
+    ("boxes: [{min: [0, 0, -2], max: [1, 1, -1], material: 0.5}]", "boxes[0].material", "number 0.5"),
+    ("meshes: [{file: tri.obj, material: 0}]", "meshes[0].material", "integer 0"),
+])
+def test_a_material_given_as_a_number_is_refused(tmp_path, shapes, path, got):
+    (tmp_path / "tri.obj").write_text("v 0 0 -2\nv 1 0 -2\nv 0 1 -2\nf 1 2 3\n")
+    scene = write_scene(tmp_path, HEAD + 'materials: {m: {type: lambertian}, "1": {type: metal}}\n' + shapes + "\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy")
+    refused(r, f"scene.yaml: {path}: expected a material name (a string), got {got}", outputs=[tmp_path / "x.npy"])
+
+
+def test_a_quoted_number_names_the_material():
+    from wavefront.scenefile import read_yaml, scene_from_dict
+
+    scene = scene_from_dict(read_yaml(HEAD.encode() + b'materials: {m: {type: lambertian}, "1": {type: metal}}\n'
+                                      b'spheres: [{center: [0, 0, -1], radius: 0.5, material: "1"}]\n', "q.yaml"))
+    assert scene.spheres[0].material == "1"
+
+
+# --- 14: an aliased list is not emptied ------------------------------------------------
+
+def test_an_alias_of_the_spheres_list_still_sees_its_entries(tmp_path):
+    scene = write_scene(tmp_path, HEAD + "materials: {m: {type: lambertian}}\n"
+                        "spheres: &l [{center: [0, 0, -1], radius: 0.5, material: m}]\nquads: *l\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy")
+    refused(r, "scene.yaml: quads[0].center: unknown key", outputs=[tmp_path / "x.npy"])
+
+
+def test_an_unshared_spheres_list_is_still_let_go_while_the_spheres_are_built(monkeypatch, tmp_path):
+    import wavefront.scenefile as scenefile
+
+    lists = []
+
+    class Spy:  # sys, recording the list whose references are counted
+        def __getattr__(self, name):
+            return getattr(sys, name)
+
+        def getrefcount(self, value):
+            count = sys.getrefcount(value) - 1  # less this frame's own reference
+            lists.append(value)
+            return count
+
+    monkeypatch.setattr(scenefile, "sys", Spy())
+    scene = scenefile.load_scene(write_scene(tmp_path, BASE))
+    assert len(scene.spheres) == 1 and lists == [[]]  # cleared while the spheres were built
+    scenefile.load_scene(write_scene(tmp_path, BASE.replace("spheres:", "spheres: &l") + "quads: []\n", "a.yaml"))
+    assert lists[1] == []  # an anchor no alias uses shares nothing

@@ -27,6 +27,7 @@ import math
 import operator
 import os
 import re
+import sys
 import unicodedata
 import warnings
 from itertools import repeat
@@ -701,20 +702,27 @@ def _refuse_images_beyond(memory: int, source: str, path: str, spec) -> None:
             walk(spec.get(key), f"{path}.{key}")
 
 
+# References to the spheres list while _spheres reads it, when no alias
+# shares it: the caller's variable, the argument, and getrefcount's own
+_UNSHARED_REFERENCES = 3
+
+
 def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere]:
     """The ``spheres`` list: in bulk when every entry is a mapping of exactly
     center, radius and material (see ``Sphere.many``), else one at a time.
     Either way the first problem in the file's order is the one reported."""
     if not isinstance(docs, list):
         raise SceneError(source, "spheres", f"expected a list, got {describe(docs)}")
-    if set(map(type, docs)) <= {dict} and all(map(operator.eq, map(dict.keys, docs), repeat(_SPHERE_KEYS))):
+    if set(map(type, docs)) <= {dict} and all(map(operator.eq, map(dict.keys, docs), repeat(_SPHERE_KEYS))) \
+            and set(map(type, materials := list(map(operator.itemgetter("material"), docs)))) <= {str}:
         centers = list(map(operator.itemgetter("center"), docs))
         radii = list(map(operator.itemgetter("radius"), docs))
-        materials = list(map(operator.itemgetter("material"), docs))
         unknown = {m for m in {m for m in materials if isinstance(m, str)}
                    if unicodedata.normalize("NFC", m) not in defined}
         end = next(i for i, m in enumerate(materials) if isinstance(m, str) and m in unknown) if unknown else None
-        if consume:
+        # the list itself is let go only when nothing else holds it: an alias
+        # (quads: *spheres) shares it, and must still see its entries
+        if consume and sys.getrefcount(docs) <= _UNSHARED_REFERENCES:
             docs.clear()
         try:
             spheres = Sphere.many(centers[:end], radii[:end], materials[:end])
@@ -737,10 +745,24 @@ def _shapes(source: str, docs, key: str, cls, defined: set[str]) -> list:
     shapes = []
     for i, spec in enumerate(docs):
         path = f"{key}[{i}]"
-        shape = _build(source, path, cls, _mapping(source, spec, path, allowed, required))
+        spec = _mapping(source, spec, path, allowed, required)
+        _material_name(source, path, spec)
+        shape = _build(source, path, cls, spec)
         _check_reference(source, path, shape.material, defined)
         shapes.append(shape)
     return shapes
+
+
+def _material_name(source: str, path: str, spec: dict) -> None:
+    """A scene file names a shape's material (``material: NAME``); an
+    unquoted number is not taken as an index into the materials (the
+    Python API's ``material=0`` still is)."""
+    value = spec.get("material")
+    if value is not None and not isinstance(value, str):
+        hint = f' (write material: "{value}" to name a material called {value})' if isinstance(value, int) \
+            and not isinstance(value, bool) else ""
+        raise SceneError(source, f"{path}.material", f"expected a material name (a string), got {describe(value)}"
+                                                     f"{hint}")
 
 
 def _check_reference(source: str, path: str, material, defined: set[str]) -> None:
@@ -780,6 +802,7 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
     for i, spec in enumerate(docs):
         path = f"meshes[{i}]"
         spec = _mapping(source, spec, path, _MESH_KEYS, {"file", "material"})
+        _material_name(source, path, spec)
         try:  # what can be checked before the file is read, by the Mesh's own rules
             name = string(Mesh, spec["file"], "file")
             mesh_fields(Mesh, spec)
