@@ -294,3 +294,25 @@ def test_an_unshared_spheres_list_is_still_let_go_while_the_spheres_are_built(mo
     assert len(scene.spheres) == 1 and lists == [[]]  # cleared while the spheres were built
     scenefile.load_scene(write_scene(tmp_path, BASE.replace("spheres:", "spheres: &l") + "quads: []\n", "a.yaml"))
     assert lists[1] == []  # an anchor no alias uses shares nothing
+
+
+# --- 11: stale temporary files -------------------------------------------------------
+
+def test_a_refused_command_removes_nothing_and_only_wavefronts_own_names_go(tmp_path):
+    import time
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    old = time.time() - 3600
+    notes = tmp_path / f".wavefront-{dead.pid}-my-notes.txt"
+    stale = tmp_path / f".wavefront-{dead.pid}-abcd_123.png"
+    for p in (notes, stale):
+        p.write_bytes(b"x")
+        os.utime(p, (old, old))
+    empty = write_scene(tmp_path, "", "empty.yaml")
+    r = run("render", empty, "-o", tmp_path / "x.png")
+    refused(r, "empty.yaml: the file is empty")
+    assert notes.exists() and stale.exists()  # refused: nothing changed
+    r = run("render", write_scene(tmp_path, BASE), "-o", tmp_path / "x.png", "-q")
+    assert r.returncode == 0, r.stderr
+    assert notes.exists() and not stale.exists()

@@ -410,6 +410,7 @@ def _render(args, signals: _Signals, started: float) -> int:
     except MemoryBudgetError as e:
         _say(f"wavefront: error: {e} (--memory)")
         return EXIT_BAD_INPUT
+    _remove_stale_temporaries(outputs + ([args.checkpoint] if args.checkpoint is not None else []))
     loaded = time.perf_counter()
 
     executor, client, workers = None, None, args.workers
@@ -497,6 +498,16 @@ def _render(args, signals: _Signals, started: float) -> int:
             client.close()
             if client.cluster is not None:
                 client.cluster.close()
+
+
+def _remove_stale_temporaries(writes: list[str]) -> None:
+    """Clear what killed renders left in the directories this one writes to
+    (see :func:`wavefront.output.remove_stale_temporaries`): only once the
+    scene and the arguments are accepted, so a refused command changes nothing."""
+    from .output import remove_stale_temporaries, resolve_target
+
+    for directory in dict.fromkeys(os.path.dirname(resolve_target(path)) for path in writes):
+        remove_stale_temporaries(directory)
 
 
 def _frame_scenes(scene, args) -> list:

@@ -99,7 +99,8 @@ def check_output_path(path: str, *, image: bool = True, probe: bool = True) -> s
     probed (unless ``probe`` is false, for a directory already probed) by
     creating and removing a temporary file there, the same way the file will
     be written: permission bits alone do not tell (root passes ``os.access``
-    on read-only mounts and in ``/proc``).
+    on read-only mounts and in ``/proc``).  Nothing else in the directory is
+    touched (see :func:`remove_stale_temporaries`).
     """
     if image:
         output_format(path)
@@ -125,7 +126,6 @@ def check_output_path(path: str, *, image: bool = True, probe: bool = True) -> s
             raise OutputError(f"{path}: cannot write in {directory} ({e.strerror or e})") from None
         os.close(fd)
         os.unlink(tmp)
-        remove_stale_temporaries(directory)
     return target
 
 
@@ -134,14 +134,23 @@ def temporary_prefix(kind: str = "") -> str:
     return f".wavefront-{kind + '-' if kind else ''}{os.getpid()}-"
 
 
-_TEMPORARY = re.compile(r"^\.wavefront-(?:[a-z]+-)?(\d+)-")
+# Exactly the names this module and film.save_checkpoint give temporary
+# files: tempfile.mkstemp's 8 characters after the prefix, and the suffix
+# each kind is written with (an image's extension, a checkpoint's .npz, none
+# for a probe).  Nothing else, however it starts, is ever removed.
+_RANDOM = "[a-z0-9_]{8}"
+_TEMPORARY = re.compile(rf"\.wavefront-(?:([0-9]+)-{_RANDOM}\.(?:png|exr|npy)|checkpoint-([0-9]+)-{_RANDOM}\.npz"
+                        rf"|probe-([0-9]+)-{_RANDOM})")  # whole names only (fullmatch)
 STALE_SECONDS = 600  # a temporary file untouched this long, whose writer is gone, is garbage
 
 
 def remove_stale_temporaries(directory: str) -> None:
     """Remove temporary files a killed wavefront left in ``directory``.
 
-    ``kill -9`` during a write leaves its temporary file behind.  One is
+    ``kill -9`` during a write leaves its temporary file behind.  Only a
+    regular file named exactly as wavefront names its temporary files
+    (``.wavefront-[kind-]PID-XXXXXXXX.ext``) is a candidate, and the command
+    calls this only once the scene and its arguments have been accepted.  One is
     removed only when its writer's process no longer exists *and* it has not
     been touched for ``STALE_SECONDS`` (a render on another machine writing
     to a shared directory has a process id that means nothing here, but it
@@ -153,13 +162,13 @@ def remove_stale_temporaries(directory: str) -> None:
     except OSError:
         return
     for entry in entries:
-        m = _TEMPORARY.match(entry.name)
+        m = _TEMPORARY.fullmatch(entry.name)
         if m is None:
             continue
         try:
             if not entry.is_file(follow_symlinks=False) or now - entry.stat().st_mtime < STALE_SECONDS:
                 continue
-            os.kill(int(m.group(1)), 0)
+            os.kill(int(next(g for g in m.groups() if g is not None)), 0)
         except ProcessLookupError:
             with contextlib.suppress(OSError):
                 os.unlink(entry.path)
