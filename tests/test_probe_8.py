@@ -316,3 +316,51 @@ def test_a_refused_command_removes_nothing_and_only_wavefronts_own_names_go(tmp_
     r = run("render", write_scene(tmp_path, BASE), "-o", tmp_path / "x.png", "-q")
     assert r.returncode == 0, r.stderr
     assert notes.exists() and not stale.exists()
+
+
+# --- 17: a scene read from a pipe resolves relative paths against the current directory --
+
+def test_a_piped_scene_reads_its_mesh_relative_to_the_current_directory(tmp_path):
+    (tmp_path / "tri.obj").write_text("v 0 0 -2\nv 1 0 -2\nv 0 1 -2\nf 1 2 3\n")
+    text = HEAD + "materials: {m: {type: lambertian}}\nmeshes: [{file: tri.obj, material: m}]\n"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", "/dev/stdin", "-o", "x.npy", "-q"],
+                       input=text, capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "x.npy").exists()
+
+
+def test_relative_paths_of_a_regular_scene_file_stay_relative_to_its_directory(tmp_path):
+    from wavefront.scenefile import _relative_to
+
+    assert _relative_to("scenes/a.yaml", True) == "scenes"
+    assert _relative_to("/dev/stdin", True) == "" and _relative_to("/dev/fd/63", True) == ""
+    assert _relative_to("/proc/self/fd/0", True) == "" and _relative_to("scenes/fifo.yaml", False) == ""
+
+
+# --- 13: a pipe is read in chunks against the budget ---------------------------------
+
+def test_a_pipe_over_the_budget_is_refused_before_it_is_read_whole(monkeypatch, tmp_path):
+    import io
+
+    from wavefront.memory import MemoryBudgetError
+    from wavefront import scenefile
+
+    class Endless(io.RawIOBase):  # a pipe that never ends: counts what is read
+        given = 0
+
+        def readable(self):
+            return True
+
+        def readinto(self, b):
+            b[:] = b"#" * len(b)
+            Endless.given += len(b)
+            return len(b)
+
+    with pytest.raises(MemoryBudgetError, match="read so far"):
+        scenefile._read_stream(io.BufferedReader(Endless()), "/dev/stdin", 64 << 20)
+    assert Endless.given < 16 * scenefile.STREAM_CHUNK  # a 64 MiB budget holds a few MiB of YAML, not 128 MiB
+
+
+def test_dev_zero_is_refused_within_the_budget(tmp_path):
+    r = run("render", "/dev/zero", "-o", tmp_path / "x.npy", "--memory", "64M")
+    refused(r, "/dev/zero", "--memory", outputs=[tmp_path / "x.npy"])

@@ -27,6 +27,7 @@ import math
 import operator
 import os
 import re
+import stat
 import sys
 import unicodedata
 import warnings
@@ -464,25 +465,65 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
     source = os.fsdecode(path)  # a bytes path too: the messages and the mesh paths are text
     if memory is not None:
         memory = check_budget(memory)  # ValueError, as render_scene's
+    regular = True
     try:
         with open(source, "rb") as f:
             try:
-                size = os.fstat(f.fileno()).st_size
+                st = os.fstat(f.fileno())
+                size, regular = st.st_size, stat.S_ISREG(st.st_mode)
             except OSError:
                 size = None
             if size and size > MAX_FILE_BYTES:  # refuse before reading a huge file
                 raise SceneError(source, "", f"file is {_size_text(size)}; the limit is {MAX_FILE_BYTES // MiB} MiB")
-            data = f.read(MAX_FILE_BYTES + 1)
+            # a pipe or device has no size: read in chunks, each checked
+            # (the command checked a file's size before reading it)
+            data = f.read(MAX_FILE_BYTES + 1) if size else _read_stream(f, source, memory)
     except OSError as e:
         raise SceneError(source, "", f"cannot read: {e.strerror or e}") from None
-    if memory is not None and not size:  # a pipe (the command checked a file's size before reading it)
-        refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(data), f"loading {source} ({len(data) / MiB:,.0f} MiB)")
     name = os.path.splitext(os.path.basename(source))[0]
     with _collector_paused(), images_shared():
         room = None if memory is None else min(MAX_VALUES, max(0, memory - current_rss()) // YAML_BYTES_PER_VALUE)
         doc = read_yaml(data, source, size=size, max_values=room)
         del data
-        return _scene_from_document(doc, source, name, consume=True, memory=memory)
+        return _scene_from_document(doc, source, name, consume=True, memory=memory, base=_relative_to(source, regular))
+
+
+STREAM_CHUNK = 1 << 20  # a pipe is read this much at a time, the budget checked after each
+
+
+def _read_stream(f, source: str, memory: int | None) -> bytes:
+    """Up to ``MAX_FILE_BYTES + 1`` bytes of a file without a size (a pipe,
+    ``/dev/stdin``, a character device), in chunks: with a ``memory``
+    budget, refused (:class:`MemoryBudgetError`) as soon as what has been
+    read could not be loaded within it, not after reading it all."""
+    buffer = bytearray()
+    while len(buffer) <= MAX_FILE_BYTES:
+        chunk = f.read(min(STREAM_CHUNK, MAX_FILE_BYTES + 1 - len(buffer)))
+        if not chunk:
+            break
+        buffer += chunk
+        del chunk
+        if memory is not None:
+            refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(buffer),
+                               f"loading {source} ({len(buffer) / MiB:,.0f} MiB read so far)")
+    return bytes(buffer)
+
+
+# Where a file descriptor is opened by name (bash's <(...), /dev/stdin): a
+# scene read there has no directory of its own
+_DESCRIPTOR_DIRECTORIES = ("/dev", "/dev/fd", "/proc/self/fd")
+
+
+def _relative_to(source: str, regular: bool) -> str:
+    """The directory a scene file's relative paths (meshes, textures) are
+    resolved against: the file's own, or the current directory ("") for a
+    scene read from standard input, a pipe or another file that is not a
+    regular file (``/dev/stdin``'s directory, /dev, means nothing)."""
+    directory = os.path.dirname(source)
+    if not regular or os.path.abspath(directory or ".") in _DESCRIPTOR_DIRECTORIES \
+            or re.fullmatch(r"/proc/[0-9]+/fd", os.path.abspath(directory or ".")):
+        return ""
+    return directory
 
 
 @contextlib.contextmanager
@@ -581,7 +622,11 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
 
 
 def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: bool,
-                         memory: int | None = None) -> Scene:
+                         memory: int | None = None, base: str | None = None) -> Scene:
+    """``base``: the directory relative paths are resolved against (default:
+    ``source``'s, none for a ``<name>``)."""
+    if base is None:
+        base = "" if source.startswith("<") else os.path.dirname(source)
     top = _mapping(source, doc, "", {"name", "image", "camera", "render", "background", "materials",
                                      "spheres", "quads", "boxes", "triangles", "meshes", "media", "lights",
                                      "ambient"})
@@ -599,7 +644,6 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         raise SceneError(source, "materials",
                          f"expected a mapping of names to materials, got {describe(materials_doc)}")
     materials = {}
-    base = "" if source.startswith("<") else os.path.dirname(source)
     for key, spec in materials_doc.items():
         if not isinstance(key, str):
             raise SceneError(source, "materials", f"material names must be strings, got {describe(key)}")
@@ -621,8 +665,8 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         except SceneError as e:
             raise e.within(source, f"boxes[{i}]") from None
     triangles = _shapes(source, top.get("triangles"), "triangles", Triangle, defined)
-    meshes = _meshes(source, top.get("meshes"), defined, memory)
-    media = _media(source, top.get("media"), memory, faces=sum(m.faces.shape[0] for m in meshes))
+    meshes = _meshes(source, top.get("meshes"), defined, memory, base=base)
+    media = _media(source, top.get("media"), memory, faces=sum(m.faces.shape[0] for m in meshes), base=base)
 
     lights_doc = top.get("lights") or []
     if not isinstance(lights_doc, list):
@@ -784,7 +828,7 @@ MESH_LOAD_BYTES_PER_FILE_BYTE = 32
 MESH_LOAD_BYTES_PER_TRIANGLE = 512
 
 
-def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> list[Mesh]:
+def _meshes(source: str, docs, defined: set[str], memory: int | None = None, *, base: str | None = None) -> list[Mesh]:
     """Meshes read from files by trimesh, paths relative to the scene file.
 
     Every problem with a file names the scene file, the YAML path and the
@@ -797,7 +841,8 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
         return []
     if not isinstance(docs, list):
         raise SceneError(source, "meshes", f"expected a list, got {describe(docs)}")
-    base = "" if source.startswith("<") else os.path.dirname(source)
+    if base is None:
+        base = "" if source.startswith("<") else os.path.dirname(source)
     meshes, total = [], 0
     for i, spec in enumerate(docs):
         path = f"meshes[{i}]"
@@ -828,7 +873,7 @@ _BOUNDARY_KEYS = {"sphere": ({"center", "radius", "transform"}, {"center", "radi
 _BOUNDARY_MATERIAL = 0  # a boundary is never shaded; its shape's material field is a placeholder
 
 
-def _media(source: str, docs, memory: int | None = None, faces: int = 0) -> list[Medium]:
+def _media(source: str, docs, memory: int | None = None, faces: int = 0, *, base: str | None = None) -> list[Medium]:
     """``media``: ``{boundary: {sphere | box | mesh: ...}, density, albedo}``
     each (see :mod:`wavefront.media`); a mesh boundary's file is read as a
     mesh's is, relative to the scene file, and must be closed.  ``faces``:
@@ -837,7 +882,8 @@ def _media(source: str, docs, memory: int | None = None, faces: int = 0) -> list
         return []
     if not isinstance(docs, list):
         raise SceneError(source, "media", f"expected a list, got {describe(docs)}")
-    base = "" if source.startswith("<") else os.path.dirname(source)
+    if base is None:
+        base = "" if source.startswith("<") else os.path.dirname(source)
     media = []
     for i, spec in enumerate(docs):
         path = f"media[{i}]"
