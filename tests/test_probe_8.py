@@ -364,3 +364,26 @@ def test_a_pipe_over_the_budget_is_refused_before_it_is_read_whole(monkeypatch, 
 def test_dev_zero_is_refused_within_the_budget(tmp_path):
     r = run("render", "/dev/zero", "-o", tmp_path / "x.npy", "--memory", "64M")
     refused(r, "/dev/zero", "--memory", outputs=[tmp_path / "x.npy"])
+
+
+# --- 12: the temporary file is on disk before it is renamed -----------------------------
+
+def test_images_and_checkpoints_are_synced_before_the_rename(tmp_path, monkeypatch):
+    from wavefront import output
+    from wavefront.film import Film, save_checkpoint
+    from wavefront.scenefile import load_scene
+
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+    monkeypatch.setattr(os, "fsync", lambda fd: (events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}"))),
+                                                 real_fsync(fd)))
+    monkeypatch.setattr(os, "replace", lambda a, b: (events.append(("replace", str(a))), real_replace(a, b)))
+    image = np.full((2, 3, 3), 0.5, np.float32)
+    for ext in ("png", "exr", "npy"):
+        output.write_image(str(tmp_path / f"x.{ext}"), image)
+    scene = load_scene(write_scene(tmp_path, BASE))
+    save_checkpoint(str(tmp_path / "ck.npz"), scene, Film(scene.width, scene.height), 0)
+    renames = [i for i, e in enumerate(events) if e[0] == "replace"]
+    assert len(renames) == 4
+    for i in renames:
+        assert events[i - 1] == ("fsync", events[i][1]), events  # the temporary file itself, just before

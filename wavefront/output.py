@@ -359,7 +359,24 @@ def publish(tmp: str, target: str, shown: str | None = None) -> None:
                 os.chown(tmp, st.st_uid, st.st_gid)
     else:
         os.chmod(tmp, 0o666 & ~_umask())
+    # on disk before it takes the target's name: after a crash or power cut
+    # the target is the old file or the whole new one, never an empty one
+    _sync(tmp, os.O_RDONLY)
     os.replace(tmp, target)
+    with contextlib.suppress(OSError):  # the rename itself, where the directory can be opened
+        _sync(os.path.dirname(target), os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+
+
+def _sync(path: str, flags: int) -> None:
+    """``fsync`` a file by name; a file system that cannot (EINVAL) is skipped."""
+    fd = os.open(path, flags)
+    try:
+        os.fsync(fd)
+    except OSError as e:
+        if e.errno not in (errno.EINVAL, errno.ENOTSUP):
+            raise
+    finally:
+        os.close(fd)
 
 
 def _umask() -> int:
