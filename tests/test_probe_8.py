@@ -387,3 +387,30 @@ def test_images_and_checkpoints_are_synced_before_the_rename(tmp_path, monkeypat
     assert len(renames) == 4
     for i in renames:
         assert events[i - 1] == ("fsync", events[i][1]), events  # the temporary file itself, just before
+
+
+# --- 15: image textures within the colour limit ------------------------------------------
+
+@pytest.mark.parametrize("value,use", [(3e38, "emissive, color"), (1e31, "lambertian, albedo")])
+def test_an_exr_texture_beyond_the_colour_limit_is_refused_naming_the_file(tmp_path, value, use):
+    import OpenEXR
+
+    kind, key = use.split(", ")
+    pixels = np.full((2, 2, 3), value, np.float32)
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                      {"RGB": pixels}) as exr:
+        exr.write(str(tmp_path / "hot.exr"))
+    scene = write_scene(tmp_path, HEAD + f"materials: {{m: {{type: {kind}, {key}: {{type: image, file: hot.exr}}}}}}\n"
+                                         "spheres: [{center: [0, 0, -1], radius: 0.5, material: m}]\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy")
+    refused(r, f"scene.yaml: materials.m.{key}.file: ", "hot.exr: the image holds values up to",
+            "a colour is at most 1e+30", outputs=[tmp_path / "x.npy"])
+
+
+def test_pixels_given_in_python_are_held_to_the_colour_limit():
+    from wavefront.textures import ImageTexture
+    from wavefront.validation import SceneError
+
+    with pytest.raises(SceneError, match="at most 1e"):
+        ImageTexture(pixels=np.full((1, 1, 3), 1e31, np.float32))
+    assert ImageTexture(pixels=np.full((1, 1, 3), 1e30, np.float32)).pixels.max() == np.float32(1e30)
