@@ -414,3 +414,19 @@ def test_pixels_given_in_python_are_held_to_the_colour_limit():
     with pytest.raises(SceneError, match="at most 1e"):
         ImageTexture(pixels=np.full((1, 1, 3), 1e31, np.float32))
     assert ImageTexture(pixels=np.full((1, 1, 3), 1e30, np.float32)).pixels.max() == np.float32(1e30)
+
+
+# --- 8: a forced float32 that cannot hold the scene ---------------------------------------
+
+@pytest.mark.parametrize("spheres,needle", [
+    ("[{center: [0, 0, -1e39], radius: 3e38, material: m}]", "it reaches 1.3e+39 from the origin"),
+    ("[{center: [0, 0, -1], radius: 1e-20, material: m}]", "a sphere's radius is 1e-20"),
+])
+def test_forced_float32_beyond_its_range_is_refused_in_one_line(tmp_path, spheres, needle):
+    scene = write_scene(tmp_path, "image: {width: 16, height: 9}\n"
+                                  "render: {samples_per_pixel: 1, max_depth: 3, precision: float32}\n"
+                                  "background: {type: solid, color: [1, 1, 1]}\n"
+                                  "materials: {m: {type: lambertian, albedo: [0, 0, 0]}}\n"
+                                  f"spheres: {spheres}\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy")
+    refused(r, "scene.yaml: render.precision: float32 cannot hold this scene", needle, outputs=[tmp_path / "x.npy"])

@@ -283,6 +283,24 @@ class Scene:
         for i, light in enumerate(lights):
             instance(self, light, f"lights[{i}]", PointLight, "a PointLight")
         set_field(self, "lights", tuple(lights))
+        if self.render.precision == "float32":
+            self._check_float32()
+
+    def _check_float32(self) -> None:
+        """A forced ``precision: float32`` must be able to hold the scene:
+        intersection squares distances and radii, which overflow float32
+        beyond ``FLOAT32_MAX_EXTENT`` and underflow below ``FLOAT32_MIN_SPHERE``."""
+        shapes = shape_points(self)
+        extent = scene_extent(self, shapes)
+        if not extent <= FLOAT32_MAX_EXTENT:
+            fail(self, "render.precision", f"float32 cannot hold this scene: it reaches {extent:.3g} from the origin, "
+                                           f"beyond {FLOAT32_MAX_EXTENT:g}, where squares of distances overflow "
+                                           "float32 (use float64 or auto)")
+        radius = shapes[1][:len(self.spheres)]
+        if radius.size and not radius.min() >= FLOAT32_MIN_SPHERE:
+            fail(self, "render.precision", f"float32 cannot hold this scene: a sphere's radius is {radius.min():.3g}, "
+                                           f"below {FLOAT32_MIN_SPHERE:g}, where squares of radii underflow float32 "
+                                           "(use float64 or auto)")
 
     def _shape_list(self, key: str, kind: type) -> list:
         shapes = getattr(self, key)
@@ -593,6 +611,13 @@ _material_of = Sphere.material.__get__  # slot getter: map() over a million sphe
 
 def _attribute_material(shape):
     return shape.material
+
+
+# A forced float32 render squares distances (up to twice the extent) and
+# sums three of them: float32 holds 3.4e38, so 1e18 keeps them finite with
+# room; radii square to at least float32's smallest normal number, 1.2e-38.
+FLOAT32_MAX_EXTENT = 1e18
+FLOAT32_MIN_SPHERE = 1e-18
 
 
 def scene_extent(scene: Scene, shapes: tuple[np.ndarray, np.ndarray] | None = None) -> float:
