@@ -430,3 +430,48 @@ def test_forced_float32_beyond_its_range_is_refused_in_one_line(tmp_path, sphere
                                   f"spheres: {spheres}\n")
     r = run("render", scene, "-o", tmp_path / "x.npy")
     refused(r, "scene.yaml: render.precision: float32 cannot hold this scene", needle, outputs=[tmp_path / "x.npy"])
+
+
+# --- 19: messages ---------------------------------------------------------------------------
+
+def test_a_budget_refused_while_compiling_names_the_scene(tmp_path, monkeypatch, capsys):
+    from wavefront import cli
+    from wavefront.memory import MemoryBudgetError
+
+    render = sys.modules["wavefront.render"]  # the module (the package's ``render`` is the function)
+
+    def refuse(scene, memory):
+        raise MemoryBudgetError("compiling 405,000 primitives needs about 300 MiB more than ...")
+
+    monkeypatch.setattr(render, "compile_within", refuse)
+    scene = write_scene(tmp_path, BASE)
+    status = cli.main(["render", str(scene), "-o", str(tmp_path / "x.npy"), "--workers", "1"])
+    err = capsys.readouterr().err
+    assert status == 2 and err.startswith(f"wavefront: error: {scene}: compiling 405,000 primitives"), err
+    assert err.rstrip().endswith("(--memory)") and not (tmp_path / "x.npy").exists()
+
+
+def png_header(path, width, height):
+    def chunk(kind, data):
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 100))
+                     + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("width,height", [(20000, 10000), (10000, 10000)])  # past Pillow's error, past its warning
+def test_a_huge_png_texture_gets_wavefronts_own_one_line(tmp_path, width, height):
+    png_header(tmp_path / "big.png", width, height)
+    scene = write_scene(tmp_path, HEAD + "materials: {m: {type: lambertian, albedo: {type: image, file: big.png}}}\n"
+                                         "spheres: [{center: [0, 0, -1], radius: 0.5, material: m}]\n")
+    r = run("render", scene, "-o", tmp_path / "x.npy")
+    refused(r, f"scene.yaml: materials.m.albedo.file: ", f"big.png: the image is {width}x{height}",
+            outputs=[tmp_path / "x.npy"])
+    assert "bomb" not in r.stderr
+
+
+def test_a_frame_pattern_that_makes_no_file_name_names_the_flag(tmp_path):
+    r = run("render", write_scene(tmp_path, BASE), "-o", tmp_path / "x{frame:c}.png", "--frames", 55297)
+    refused(r, "the {frame} pattern makes frame 55296's file name", "--frames")
+    assert not list(tmp_path.glob("x*.png"))

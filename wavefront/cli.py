@@ -278,8 +278,13 @@ def frame_paths(output: str, frames: int | None) -> list[str]:
                 raise ValueError(f"{output}: bad {{frame}} pattern ({e})") from None
             # checked as made: a pattern like {frame:>5000} built 100,000 names (500 MB) before
             # the first write refused them, in a message of 5,000 characters
-            size = len(os.fsencode(path))
-            if size > MAX_PATH_BYTES or max(map(len, os.fsencode(path).split(b"/"))) > MAX_NAME_BYTES:
+            try:
+                encoded = os.fsencode(path)
+            except UnicodeEncodeError:  # {frame:c} of 55296 is a lone surrogate: no file name holds it
+                raise ValueError(f"{output[:200]}: the {{frame}} pattern makes frame {k}'s file name "
+                                 f"{path[:200]!r}, which cannot be a file name (--frames)") from None
+            size = len(encoded)
+            if size > MAX_PATH_BYTES or max(map(len, encoded.split(b"/"))) > MAX_NAME_BYTES:
                 raise ValueError(f"{output[:200]}: the {{frame}} pattern makes a file name longer than the "
                                  f"system allows ({MAX_NAME_BYTES} bytes a name, {MAX_PATH_BYTES} a path)")
             total += size
@@ -408,7 +413,7 @@ def _render(args, signals: _Signals, started: float) -> int:
         _say(f"wavefront: error: {e}")
         return EXIT_BAD_INPUT
     except MemoryBudgetError as e:
-        _say(f"wavefront: error: {e} (--memory)")
+        _say(f"wavefront: error: {_naming(args.scene, e)} (--memory)")
         return EXIT_BAD_INPUT
     _remove_stale_temporaries(outputs + ([args.checkpoint] if args.checkpoint is not None else []))
     loaded = time.perf_counter()
@@ -454,7 +459,7 @@ def _render(args, signals: _Signals, started: float) -> int:
                 _say(f"wavefront: error: {e}")
                 return EXIT_BAD_INPUT
             except MemoryBudgetError as e:
-                _say(f"wavefront: error: {e} (--memory)")
+                _say(f"wavefront: error: {_naming(args.scene, e)} (--memory)")
                 return EXIT_BAD_INPUT
             except RenderError as e:
                 _say(f"wavefront: error: {e}; nothing was written")
@@ -498,6 +503,13 @@ def _render(args, signals: _Signals, started: float) -> int:
             client.close()
             if client.cluster is not None:
                 client.cluster.close()
+
+
+def _naming(scene: str, e: Exception) -> str:
+    """A budget's message, led by the scene file when it does not name it
+    already ("compiling 405,000 primitives needs ..." names no file)."""
+    text = str(e)
+    return text if text.startswith(("loading ", scene)) else f"{scene}: {text}"
 
 
 def _remove_stale_temporaries(writes: list[str]) -> None:

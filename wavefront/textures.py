@@ -263,7 +263,8 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         import imageio.v3 as iio
 
         try:
-            props = iio.improps(file)
+            with _without_pillows_size_limit():
+                props = iio.improps(file)
         except Exception as e:  # imageio's plugins raise many kinds; any of them means "not an image we read"
             fail(obj, "file", f"{file}: not an image imageio can read ({first_line(e)})")
         shape, images = props.shape, props.n_images or 1
@@ -274,6 +275,25 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         width, height, kind = int(shape[1]), int(shape[0]), "imageio"
     _too_big(obj, width, height, file)
     return kind, width, height, images
+
+
+@contextlib.contextmanager
+def _without_pillows_size_limit():
+    """Pillow's decompression-bomb check off while only a header is read:
+    past 89 M pixels it warned, past 179 M it raised, each in its own words;
+    wavefront's own limit (``MAX_TEXTURE_PIXELS``, far lower) follows from
+    the header's size, with its own message, before anything is decoded."""
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - imageio reads with other plugins then
+        yield
+        return
+    saved = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None
+    try:
+        yield
+    finally:
+        Image.MAX_IMAGE_PIXELS = saved
 
 
 def image_load_bytes(file: str) -> int | None:
