@@ -399,6 +399,7 @@ def _render(args, signals: _Signals, started: float) -> int:
     from .film import CheckpointError
     from .output import OutputError, encode_bytes
     from .render import DEFAULT_MEMORY, MemoryBudgetError, RenderError, compile_within, phase_peak, render_scene
+    from .scene import turntable
     from .scenefile import SceneError, load_scene
 
     memory = args.memory or DEFAULT_MEMORY
@@ -408,7 +409,7 @@ def _render(args, signals: _Signals, started: float) -> int:
         scene = load_scene(args.scene, memory=memory)
         scene = _with_flags(scene, args)
         check_not_reading(scene, outputs + ([args.checkpoint] if args.checkpoint is not None else []))
-        frame_scenes = _frame_scenes(scene, args)  # every frame checked before the first is rendered
+        _check_frames(scene, args)  # every frame checked before the first is rendered
     except (SceneError, OutputError) as e:
         _say(f"wavefront: error: {e}")
         return EXIT_BAD_INPUT
@@ -439,7 +440,7 @@ def _render(args, signals: _Signals, started: float) -> int:
                    leave=False)
     try:
         for k, out in enumerate(outputs):
-            frame_scene = frame_scenes[k]
+            frame_scene = scene if args.frames is None else turntable(scene, k, args.frames)
 
             def progress(done: int, total: int, offset=k * samples_per_frame) -> None:
                 if bar is not None:
@@ -522,26 +523,23 @@ def _remove_stale_temporaries(writes: list[str]) -> None:
         remove_stale_temporaries(directory)
 
 
-def _frame_scenes(scene, args) -> list:
-    """The scene of each frame (``--frames``' turntable), each validated as
-    a scene is: a frame whose camera leaves the coordinates' range (or
-    cannot be resolved) is refused before any frame is rendered, naming the
-    scene file, the camera and the frame."""
+def _check_frames(scene, args) -> None:
+    """Build the scene of each frame (``--frames``' turntable), validated as
+    a scene is, and let it go (each is ~1 KB: 100,000 frames kept would be
+    100 MB; the render loop builds each again): a frame whose camera leaves
+    the coordinates' range (or cannot be resolved) is refused before any
+    frame is rendered, naming the scene file, the camera and the frame."""
     from .scene import turntable
     from .scenefile import SceneError
     from .validation import join
 
-    if args.frames is None:
-        return [scene]
-    scenes = []
-    for k in range(args.frames):
+    for k in range(args.frames or 0):
         try:
-            scenes.append(turntable(scene, k, args.frames))
+            turntable(scene, k, args.frames)
         except SceneError as e:
             raise SceneError(args.scene, join("camera", e.path.removeprefix("camera").lstrip(".")),
                              f"in frame {k} of --frames {args.frames} (look_from turned about look_at): "
                              f"{e.problem}") from None
-    return scenes
 
 
 def _refuse_unless_loading_fits(path: str, memory: int) -> None:
