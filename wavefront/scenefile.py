@@ -766,7 +766,7 @@ def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere
         end = next(i for i, m in enumerate(materials) if isinstance(m, str) and m in unknown) if unknown else None
         # the list itself is let go only when nothing else holds it: an alias
         # (quads: *spheres) shares it, and must still see its entries
-        if consume and sys.getrefcount(docs) <= _UNSHARED_REFERENCES:
+        if consume and hasattr(sys, "getrefcount") and sys.getrefcount(docs) <= _UNSHARED_REFERENCES:
             docs.clear()
         try:
             spheres = Sphere.many(centers[:end], radii[:end], materials[:end])
