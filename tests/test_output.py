@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from wavefront.film import Film, save_checkpoint
-from wavefront.output import OutputError, check_output_path, same_file, write_image
+from wavefront.output import OutputError, check_output_path, remove_stale_temporaries, same_file, write_image
 from wavefront.scene import Scene
 
 from .test_cli import SMALL, run
@@ -161,16 +161,21 @@ def test_stale_temporaries_of_dead_writers_are_removed(tmp_path):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     old = clock.time() - 3600
-    stale = tmp_path / f".wavefront-checkpoint-{dead.pid}-abc.npz"
-    fresh = tmp_path / f".wavefront-{dead.pid}-def.png"  # recent: maybe a writer on another machine
-    alive = tmp_path / f".wavefront-{os.getpid()}-ghi.png"  # its writer is running
-    other = tmp_path / ".wavefront-notes.txt"
-    for p in (stale, fresh, alive, other):
+    stale = [tmp_path / f".wavefront-checkpoint-{dead.pid}-abc_1234.npz", tmp_path / f".wavefront-{dead.pid}-a_c12345.exr",
+             tmp_path / f".wavefront-probe-{dead.pid}-abcdefgh"]
+    fresh = tmp_path / f".wavefront-{dead.pid}-defghijk.png"  # recent: maybe a writer on another machine
+    alive = tmp_path / f".wavefront-{os.getpid()}-ghijklmn.png"  # its writer is running
+    # not named exactly as wavefront names its temporary files: never touched
+    others = [tmp_path / name for name in (".wavefront-notes.txt", f".wavefront-{dead.pid}-my-notes.txt",
+                                           f".wavefront-{dead.pid}-abcdefgh.png.bak", f".wavefront-{dead.pid}-abc.png",
+                                           f".wavefront-probe-{dead.pid}-abcdefgh.png")]
+    for p in (*stale, fresh, alive, *others):
         p.write_bytes(b"x")
-    for p in (stale, alive, other):
+    for p in (*stale, alive, *others):
         os.utime(p, (old, old))
-    check_output_path(str(tmp_path / "out.png"))
-    assert not stale.exists() and fresh.exists() and alive.exists() and other.exists()
+    remove_stale_temporaries(str(tmp_path))
+    assert not any(p.exists() for p in stale) and fresh.exists() and alive.exists()
+    assert all(p.exists() for p in others)
 
 
 def test_a_full_disk_while_writing_an_exr_is_an_oserror(tmp_path, monkeypatch):

@@ -25,6 +25,10 @@ STEPS_PER_PIXEL = 4
 # MiB) would not: measured inside W1's render (interleaved, same rays),
 # 45-51 ns a ray whole against 34-38 in blocks of 8-16 Ki.
 RAY_BLOCK = 1 << 13
+# A camera ray's direction is normalised through the squares of its
+# components, a pixel's width apart at the focus plane: below this their
+# squares underflow float64 (1e-300 is 1e-150 squared) and the rays collapse.
+MIN_PIXEL = 1e-140
 
 Vec3 = tuple[float, float, float]
 
@@ -93,6 +97,12 @@ class Camera:
         # the focus plane lies up to focus + half the viewport from look_from
         magnitude = max(magnitude, max(map(abs, self.look_from)) + focus + pixel * max(width, height))
         spacing = math.ulp(magnitude)
+        if not pixel >= MIN_PIXEL:
+            fail(self, "look_at", f"the view is too small to render in float64: a pixel at the focus distance "
+                                  f"{focus:.3g} is {pixel:.3g} wide, and ray directions are normalised through "
+                                  f"their squares, which underflow below about {MIN_PIXEL:g}; "
+                                  + ("increase focus_dist" if self.focus_dist is not None else
+                                     "move look_at farther from look_from, or set focus_dist"))
         if not pixel >= STEPS_PER_PIXEL * spacing:
             hint = "increase focus_dist" if self.focus_dist is not None else "move look_at farther from look_from"
             # named look_at, as every problem of the view's geometry is (the
@@ -106,10 +116,9 @@ class Camera:
         """Derived per-image state: pixel grid and lens basis."""
         center = np.asarray(self.look_from, dtype=np.float64)
         forward = np.asarray(self.look_at, dtype=np.float64) - center
-        focus = float(self.focus_dist) if self.focus_dist is not None else float(np.linalg.norm(forward))
-        w = -forward / np.linalg.norm(forward)
-        u = np.cross(np.asarray(self.vup, dtype=np.float64), w)
-        u /= np.linalg.norm(u)
+        focus = float(self.focus_dist) if self.focus_dist is not None else length(forward)
+        w = -direction(forward)
+        u = direction(np.cross(direction(np.asarray(self.vup, dtype=np.float64), keep_safe=True), w))
         v = np.cross(w, u)
         viewport_height = 2.0 * math.tan(math.radians(self.vfov) / 2.0) * focus
         viewport_width = viewport_height * width / height
@@ -136,6 +145,29 @@ def _unit(v) -> tuple[float, float, float]:
     v = [x / scale for x in v]
     length = math.hypot(*v)
     return tuple(x / length for x in v)
+
+
+# Vectors whose length is within these bounds have squares float64 holds
+# (NumPy's norm squares them): they are normalised as they always were, bit
+# for bit; others (a vup of 1e200 or 1e-200) at unit scale, as the validator does.
+_SAFE_LENGTH = (1e-150, 1e150)
+
+
+def length(v: np.ndarray) -> float:
+    """``|v|`` of a (3,) vector, without overflow or underflow."""
+    with np.errstate(over="ignore", under="ignore"):
+        n = float(np.linalg.norm(v))
+    return n if _SAFE_LENGTH[0] < n < _SAFE_LENGTH[1] else math.hypot(*map(float, v))
+
+
+def direction(v: np.ndarray, keep_safe: bool = False) -> np.ndarray:
+    """``v / |v|`` for a non-zero (3,) vector, at any scale; with ``keep_safe``,
+    ``v`` itself when its length is safe (it only gives a direction)."""
+    with np.errstate(over="ignore", under="ignore"):
+        n = float(np.linalg.norm(v))
+    if _SAFE_LENGTH[0] < n < _SAFE_LENGTH[1]:
+        return v if keep_safe else v / n
+    return np.array(_unit([float(x) for x in v]))
 
 
 @dataclass(frozen=True)

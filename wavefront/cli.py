@@ -278,8 +278,13 @@ def frame_paths(output: str, frames: int | None) -> list[str]:
                 raise ValueError(f"{output}: bad {{frame}} pattern ({e})") from None
             # checked as made: a pattern like {frame:>5000} built 100,000 names (500 MB) before
             # the first write refused them, in a message of 5,000 characters
-            size = len(os.fsencode(path))
-            if size > MAX_PATH_BYTES or max(map(len, os.fsencode(path).split(b"/"))) > MAX_NAME_BYTES:
+            try:
+                encoded = os.fsencode(path)
+            except UnicodeEncodeError:  # {frame:c} of 55296 is a lone surrogate: no file name holds it
+                raise ValueError(f"{output[:200]}: the {{frame}} pattern makes frame {k}'s file name "
+                                 f"{path[:200]!r}, which cannot be a file name (--frames)") from None
+            size = len(encoded)
+            if size > MAX_PATH_BYTES or max(map(len, encoded.split(b"/"))) > MAX_NAME_BYTES:
                 raise ValueError(f"{output[:200]}: the {{frame}} pattern makes a file name longer than the "
                                  f"system allows ({MAX_NAME_BYTES} bytes a name, {MAX_PATH_BYTES} a path)")
             total += size
@@ -404,12 +409,14 @@ def _render(args, signals: _Signals, started: float) -> int:
         scene = load_scene(args.scene, memory=memory)
         scene = _with_flags(scene, args)
         check_not_reading(scene, outputs + ([args.checkpoint] if args.checkpoint is not None else []))
+        _check_frames(scene, args)  # every frame checked before the first is rendered
     except (SceneError, OutputError) as e:
         _say(f"wavefront: error: {e}")
         return EXIT_BAD_INPUT
     except MemoryBudgetError as e:
-        _say(f"wavefront: error: {e} (--memory)")
+        _say(f"wavefront: error: {_naming(args.scene, e)} (--memory)")
         return EXIT_BAD_INPUT
+    _remove_stale_temporaries(outputs + ([args.checkpoint] if args.checkpoint is not None else []))
     loaded = time.perf_counter()
 
     executor, client, workers = None, None, args.workers
@@ -453,7 +460,7 @@ def _render(args, signals: _Signals, started: float) -> int:
                 _say(f"wavefront: error: {e}")
                 return EXIT_BAD_INPUT
             except MemoryBudgetError as e:
-                _say(f"wavefront: error: {e} (--memory)")
+                _say(f"wavefront: error: {_naming(args.scene, e)} (--memory)")
                 return EXIT_BAD_INPUT
             except RenderError as e:
                 _say(f"wavefront: error: {e}; nothing was written")
@@ -499,6 +506,42 @@ def _render(args, signals: _Signals, started: float) -> int:
                 client.cluster.close()
 
 
+def _naming(scene: str, e: Exception) -> str:
+    """A budget's message, led by the scene file when it does not name it
+    already ("compiling 405,000 primitives needs ..." names no file)."""
+    text = str(e)
+    return text if text.startswith(("loading ", scene)) else f"{scene}: {text}"
+
+
+def _remove_stale_temporaries(writes: list[str]) -> None:
+    """Clear what killed renders left in the directories this one writes to
+    (see :func:`wavefront.output.remove_stale_temporaries`): only once the
+    scene and the arguments are accepted, so a refused command changes nothing."""
+    from .output import remove_stale_temporaries, resolve_target
+
+    for directory in dict.fromkeys(os.path.dirname(resolve_target(path)) for path in writes):
+        remove_stale_temporaries(directory)
+
+
+def _check_frames(scene, args) -> None:
+    """Build the scene of each frame (``--frames``' turntable), validated as
+    a scene is, and let it go (each is ~1 KB: 100,000 frames kept would be
+    100 MB; the render loop builds each again): a frame whose camera leaves
+    the coordinates' range (or cannot be resolved) is refused before any
+    frame is rendered, naming the scene file, the camera and the frame."""
+    from .scene import turntable
+    from .scenefile import SceneError
+    from .validation import join
+
+    for k in range(args.frames or 0):
+        try:
+            turntable(scene, k, args.frames)
+        except SceneError as e:
+            raise SceneError(args.scene, join("camera", e.path.removeprefix("camera").lstrip(".")),
+                             f"in frame {k} of --frames {args.frames} (look_from turned about look_at): "
+                             f"{e.problem}") from None
+
+
 def _refuse_unless_loading_fits(path: str, memory: int) -> None:
     """Refuse a scene file too big to load within the budget, before reading it."""
     from .memory import refuse_unless_fits
@@ -539,6 +582,7 @@ def _write_or_rescue(out: str, film, metadata) -> tuple[str | None, str | None]:
     full disk or a directory removed while it ran.
     """
     from .output import OutputError, write_image
+    from .validation import first_line
 
     try:
         write_image(out, film, metadata)
@@ -547,6 +591,8 @@ def _write_or_rescue(out: str, film, metadata) -> tuple[str | None, str | None]:
         problem = f"cannot write the image: {e}"
     except OSError as e:
         problem = f"{out}: cannot write the image: {e.strerror or e}"
+    except Exception as e:  # an encoder's own failure (Pillow, OpenEXR): the render is still not lost
+        problem = f"{out}: cannot write the image: {first_line(e)}"
     ext = os.path.splitext(out)[1].lower()
     for directory in dict.fromkeys((tempfile.gettempdir(), os.getcwd(), os.path.expanduser("~"))):
         for suffix in dict.fromkeys((ext, ".npy")):
@@ -559,7 +605,7 @@ def _write_or_rescue(out: str, film, metadata) -> tuple[str | None, str | None]:
             try:
                 write_image(rescue, film, metadata)
                 return rescue, f"{problem}; the image was saved to {rescue} instead"
-            except (OSError, OutputError):
+            except Exception:  # noqa: BLE001 - the next place, and at last .npy, which needs no encoder
                 with contextlib.suppress(OSError):
                     os.unlink(rescue)
     return None, f"{problem}; no other place to save the image was writable either"

@@ -101,7 +101,9 @@ def _feed(h, value) -> None:
     elif isinstance(value, (float, np.floating)):
         h.update(b"F" + float(value).hex().encode() + b"\0")
     elif isinstance(value, str):
-        data = value.encode()
+        # surrogatepass: a path with undecodable bytes (os.fsdecode's
+        # surrogates) is hashed too; valid text hashes as plain UTF-8
+        data = value.encode("utf-8", "surrogatepass")
         h.update(b"S" + struct.pack("<Q", len(data)) + data)
     elif value is None:
         h.update(b"N")

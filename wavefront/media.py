@@ -48,7 +48,7 @@ from .geometry import Sphere
 from .shapes import Box, Mesh, mesh_triangles
 from .shapes.sphere import world_sphere
 from .textures import Checker, ImageTexture, Texture, TextureTable, is_texture, texture_field
-from .validation import color, describe, fail, join, number
+from .validation import SceneError, color, describe, fail, join, number
 
 RGB = tuple[float, float, float]
 
@@ -99,6 +99,26 @@ class Medium:
         set_field(self, "albedo", volume_albedo(self, texture_field(self, self.albedo, "albedo"), "albedo"))
         if isinstance(self.boundary, Mesh):
             set_field(self, "boundary", closed_outward(self, self.boundary))
+        if isinstance(self.boundary, Box):  # its faces are built when the scene is compiled: check them now
+            box_faces(self, self.boundary, "boundary")
+
+
+def box_faces(obj, box: Box, path: str) -> list:
+    """``box.quads()``, or a SceneError of ``obj`` at ``path`` saying why the
+    box's faces cannot be intersected (a box without a transform checks only
+    its corners when built, and a face of edges beyond ~1e77 has an area
+    float64 cannot hold)."""
+    try:
+        return box.quads()
+    except SceneError as e:
+        if e.path.startswith(("u", "v")):  # an edge, max - min, past the coordinate limit
+            problem = f"box too large: an edge (max - min) {e.problem}"
+        elif e.problem.startswith("quad too "):
+            problem = ("box" + e.problem.removeprefix("quad")).replace("its area", "a face's area").replace(
+                "keep edges", "keep its edges, max - min,")
+        else:
+            problem = f"a face of the box: {join(e.path, '') + ': ' if e.path else ''}{e.problem}"
+        fail(obj, path, problem)
 
 
 def closed_outward(obj, mesh: Mesh) -> Mesh:
@@ -205,6 +225,38 @@ def boundary_volume(medium: Medium) -> float:
         return float(np.prod(np.subtract(b.max, b.min))) * scale
     t = mesh_triangles(b)  # divergence theorem: signed tetrahedra from the origin
     return abs(float(np.einsum("ij,ij->", t["v0"], np.cross(t["v1"], t["v2"], axis=0)))) / 6.0
+
+
+def boundary_log_volume(medium: Medium) -> float:
+    """The natural logarithm of :func:`boundary_volume`, computed without
+    overflow (a sphere of radius 1e120 encloses more than float64 holds)."""
+    b = medium.boundary
+    if isinstance(b, Sphere):
+        return math.log(4.0 / 3.0 * math.pi) + 3.0 * math.log(world_sphere(b)[1])
+    if isinstance(b, Box):
+        log_scale = 0.0 if b.transform is None else float(np.linalg.slogdet(b.transform.array[:3, :3])[1])
+        return float(np.sum(np.log(np.subtract(b.max, b.min)))) + log_scale
+    t = mesh_triangles(b)
+    # scaled by a power of two (exact) so that the triple products stay finite
+    scale = math.ldexp(1.0, math.frexp(max(float(np.abs(t[k]).max()) for k in ("v0", "v1", "v2")) or 1.0)[1])
+    v0, v1, v2 = (t[k] / scale for k in ("v0", "v1", "v2"))
+    volume = abs(float(np.einsum("ij,ij->", v0, np.cross(v1, v2, axis=0)))) / 6.0
+    return (math.log(volume) if volume > 0 else -math.inf) + 3.0 * math.log(scale)
+
+
+def volume_order(media) -> np.ndarray:
+    """(K,) keys ordering ``media`` by the volume each encloses: the volumes,
+    or, when one of them overflows float64, every one's logarithm (the same
+    order; the volumes themselves where they fit, so that near-ties order as
+    they always did)."""
+    try:
+        with np.errstate(over="raise", invalid="raise"):
+            volume = np.array([boundary_volume(m) for m in media], dtype=np.float64)
+        if np.isfinite(volume).all():
+            return volume
+    except (OverflowError, FloatingPointError):
+        pass
+    return np.array([boundary_log_volume(m) for m in media], dtype=np.float64)
 
 
 def contains(medium: Medium, point) -> bool:

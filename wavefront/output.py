@@ -99,7 +99,8 @@ def check_output_path(path: str, *, image: bool = True, probe: bool = True) -> s
     probed (unless ``probe`` is false, for a directory already probed) by
     creating and removing a temporary file there, the same way the file will
     be written: permission bits alone do not tell (root passes ``os.access``
-    on read-only mounts and in ``/proc``).
+    on read-only mounts and in ``/proc``).  Nothing else in the directory is
+    touched (see :func:`remove_stale_temporaries`).
     """
     if image:
         output_format(path)
@@ -125,7 +126,6 @@ def check_output_path(path: str, *, image: bool = True, probe: bool = True) -> s
             raise OutputError(f"{path}: cannot write in {directory} ({e.strerror or e})") from None
         os.close(fd)
         os.unlink(tmp)
-        remove_stale_temporaries(directory)
     return target
 
 
@@ -134,14 +134,23 @@ def temporary_prefix(kind: str = "") -> str:
     return f".wavefront-{kind + '-' if kind else ''}{os.getpid()}-"
 
 
-_TEMPORARY = re.compile(r"^\.wavefront-(?:[a-z]+-)?(\d+)-")
+# Exactly the names this module and film.save_checkpoint give temporary
+# files: tempfile.mkstemp's 8 characters after the prefix, and the suffix
+# each kind is written with (an image's extension, a checkpoint's .npz, none
+# for a probe).  Nothing else, however it starts, is ever removed.
+_RANDOM = "[a-z0-9_]{8}"
+_TEMPORARY = re.compile(rf"\.wavefront-(?:([0-9]+)-{_RANDOM}\.(?:png|exr|npy)|checkpoint-([0-9]+)-{_RANDOM}\.npz"
+                        rf"|probe-([0-9]+)-{_RANDOM})")  # whole names only (fullmatch)
 STALE_SECONDS = 600  # a temporary file untouched this long, whose writer is gone, is garbage
 
 
 def remove_stale_temporaries(directory: str) -> None:
     """Remove temporary files a killed wavefront left in ``directory``.
 
-    ``kill -9`` during a write leaves its temporary file behind.  One is
+    ``kill -9`` during a write leaves its temporary file behind.  Only a
+    regular file named exactly as wavefront names its temporary files
+    (``.wavefront-[kind-]PID-XXXXXXXX.ext``) is a candidate, and the command
+    calls this only once the scene and its arguments have been accepted.  One is
     removed only when its writer's process no longer exists *and* it has not
     been touched for ``STALE_SECONDS`` (a render on another machine writing
     to a shared directory has a process id that means nothing here, but it
@@ -153,13 +162,13 @@ def remove_stale_temporaries(directory: str) -> None:
     except OSError:
         return
     for entry in entries:
-        m = _TEMPORARY.match(entry.name)
+        m = _TEMPORARY.fullmatch(entry.name)
         if m is None:
             continue
         try:
             if not entry.is_file(follow_symlinks=False) or now - entry.stat().st_mtime < STALE_SECONDS:
                 continue
-            os.kill(int(m.group(1)), 0)
+            os.kill(int(next(g for g in m.groups() if g is not None)), 0)
         except ProcessLookupError:
             with contextlib.suppress(OSError):
                 os.unlink(entry.path)
@@ -291,7 +300,7 @@ def write_image(path: str, image, metadata: dict[str, str] | None = None) -> Non
     ``metadata`` goes into PNG text chunks and EXR header attributes.
     """
     ext = output_format(path)
-    metadata = {k: str(v) for k, v in (metadata or {}).items()}
+    metadata = {k: metadata_text(v) for k, v in (metadata or {}).items()}
     target = resolve_target(path)
     fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(), suffix=ext, dir=os.path.dirname(target))
     try:
@@ -307,6 +316,28 @@ def write_image(path: str, image, metadata: dict[str, str] | None = None) -> Non
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+# NUL ends a C string (OpenEXR's attributes) and is forbidden in PNG text
+# chunks; the other C0 controls but tab and newline are "discouraged" there
+_UNWRITABLE = re.compile("[\x00-\x08\x0b-\x1f\x7f]")
+
+
+def metadata_text(value) -> str:
+    """``str(value)`` as text every image format can hold: a file name's
+    undecodable bytes (``os.fsdecode``'s surrogates, from a non-UTF-8 path)
+    shown as ``\\xff``, NUL and other control characters as escapes.
+
+    Valid text without control characters is unchanged; Pillow stores text
+    that is not Latin-1 in an iTXt (UTF-8) chunk instead of tEXt.
+    """
+    text = str(value)
+    try:
+        data = text.encode("utf-8", "surrogateescape")  # the bytes a path's surrogates stand for
+    except UnicodeEncodeError:  # a surrogate no decoding made
+        data = text.encode("utf-8", "backslashreplace")
+    text = data.decode("utf-8", "backslashreplace")
+    return _UNWRITABLE.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
 def publish(tmp: str, target: str, shown: str | None = None) -> None:
@@ -328,7 +359,24 @@ def publish(tmp: str, target: str, shown: str | None = None) -> None:
                 os.chown(tmp, st.st_uid, st.st_gid)
     else:
         os.chmod(tmp, 0o666 & ~_umask())
+    # on disk before it takes the target's name: after a crash or power cut
+    # the target is the old file or the whole new one, never an empty one
+    _sync(tmp, os.O_RDONLY)
     os.replace(tmp, target)
+    with contextlib.suppress(OSError):  # the rename itself, where the directory can be opened
+        _sync(os.path.dirname(target), os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+
+
+def _sync(path: str, flags: int) -> None:
+    """``fsync`` a file by name; a file system that cannot (EINVAL) is skipped."""
+    fd = os.open(path, flags)
+    try:
+        os.fsync(fd)
+    except OSError as e:
+        if e.errno not in (errno.EINVAL, errno.ENOTSUP):
+            raise
+    finally:
+        os.close(fd)
 
 
 def _umask() -> int:
@@ -368,7 +416,13 @@ def _write_exr(path, image, metadata) -> None:
     channels = {"RGB": np.ascontiguousarray(rows(0, height), dtype=np.float32)}
     try:
         with OpenEXR.File(header, channels) as exr:
-            exr.write(path)
+            try:
+                path.encode()
+            except UnicodeEncodeError:  # a directory name that is not UTF-8: OpenEXR takes only text paths
+                with open(path, "wb") as f:
+                    exr.write(f)
+            else:
+                exr.write(path)
     except RuntimeError as e:  # OpenEXR's way of saying the disk is full or the file unwritable
         raise OSError(errno.EIO, str(e).splitlines()[0] if str(e) else "OpenEXR could not write the file") from None
 

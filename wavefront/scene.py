@@ -32,11 +32,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .background import Background, Sky, Solid
-from .camera import Camera
+from .camera import Camera, direction
 from .geometry import FLOAT32_EXTENT, FLOAT32_MAX_REACH, Sphere, position, precision_for
 from .lights import EmitterTable
 from .materials import Dielectric, Emissive, Lambertian, Material, MaterialTable, Metal, Phong
-from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, boundary_volume, contains
+from .media import MAX_MEDIA, Medium, MediumTable, boundary_primitives, contains, volume_order
 from .sampling import SAMPLERS
 from .shapes import Intersector, Mesh, Primitives, Quad, QuadSet, SphereSet, Triangle, TriangleSet, mesh_triangles
 from .shapes.base import exact_pad
@@ -284,6 +284,24 @@ class Scene:
         for i, light in enumerate(lights):
             instance(self, light, f"lights[{i}]", PointLight, "a PointLight")
         set_field(self, "lights", tuple(lights))
+        if self.render.precision == "float32":
+            self._check_float32()
+
+    def _check_float32(self) -> None:
+        """A forced ``precision: float32`` must be able to hold the scene:
+        intersection squares distances and radii, which overflow float32
+        beyond ``FLOAT32_MAX_EXTENT`` and underflow below ``FLOAT32_MIN_SPHERE``."""
+        shapes = shape_points(self)
+        extent = scene_extent(self, shapes)
+        if not extent <= FLOAT32_MAX_EXTENT:
+            fail(self, "render.precision", f"float32 cannot hold this scene: it reaches {extent:.3g} from the origin, "
+                                           f"beyond {FLOAT32_MAX_EXTENT:g}, where squares of distances overflow "
+                                           "float32 (use float64 or auto)")
+        radius = shapes[1][:len(self.spheres)]
+        if radius.size and not radius.min() >= FLOAT32_MIN_SPHERE:
+            fail(self, "render.precision", f"float32 cannot hold this scene: a sphere's radius is {radius.min():.3g}, "
+                                           f"below {FLOAT32_MIN_SPHERE:g}, where squares of radii underflow float32 "
+                                           "(use float64 or auto)")
 
     def _shape_list(self, key: str, kind: type) -> list:
         shapes = getattr(self, key)
@@ -430,7 +448,7 @@ def compile_media(scene: Scene, primitives: Primitives, extent: float) -> Medium
     if not scene.media:
         return None
     dtype = primitives.dtype
-    volume = np.array([boundary_volume(m) for m in scene.media])
+    volume = volume_order(scene.media)
     medium_of_bit = np.lexsort((np.arange(volume.size), -volume))  # ties: the one listed last gets the higher bit
     bit_of = np.empty_like(medium_of_bit)
     bit_of[medium_of_bit] = np.arange(volume.size)
@@ -596,6 +614,13 @@ def _attribute_material(shape):
     return shape.material
 
 
+# A forced float32 render squares distances (up to twice the extent) and
+# sums three of them: float32 holds 3.4e38, so 1e18 keeps them finite with
+# room; radii square to at least float32's smallest normal number, 1.2e-38.
+FLOAT32_MAX_EXTENT = 1e18
+FLOAT32_MIN_SPHERE = 1e-18
+
+
 def scene_extent(scene: Scene, shapes: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Distance from the origin within which every ray starts and every hit lies.
 
@@ -672,8 +697,7 @@ def turntable(scene: Scene, frame: int, frames: int) -> Scene:
     """``scene`` with ``look_from`` turned ``frame / frames`` of a full circle
     around the axis through ``look_at`` along ``vup``."""
     cam = scene.camera
-    axis = np.asarray(cam.vup, dtype=np.float64)
-    axis /= np.linalg.norm(axis)
+    axis = direction(np.asarray(cam.vup, dtype=np.float64))  # any scale: a vup of 1e-300 too
     pivot = np.asarray(cam.look_at, dtype=np.float64)
     v = np.asarray(cam.look_from, dtype=np.float64) - pivot
     angle = 2.0 * np.pi * frame / frames

@@ -27,6 +27,8 @@ import math
 import operator
 import os
 import re
+import stat
+import sys
 import unicodedata
 import warnings
 from itertools import repeat
@@ -44,7 +46,7 @@ from .scene import (  # noqa: F401  (the limits are importable from here too, as
     MATERIAL_TYPES, MAX_DEPTH, MAX_PIXELS, MAX_SAMPLES_PER_PIXEL, MAX_SEED, PointLight, RenderSettings, Scene,
     unknown_material,
 )
-from .media import Medium
+from .media import Medium, box_faces
 from .shapes import Box, Mesh, MeshError, Quad, Triangle, read_mesh
 from .memory import LOAD_BYTES_PER_FILE_BYTE, MemoryBudgetError, check_budget, current_rss, refuse_unless_fits
 from .textures import image_load_bytes, images_shared
@@ -463,25 +465,65 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
     source = os.fsdecode(path)  # a bytes path too: the messages and the mesh paths are text
     if memory is not None:
         memory = check_budget(memory)  # ValueError, as render_scene's
+    regular = True
     try:
         with open(source, "rb") as f:
             try:
-                size = os.fstat(f.fileno()).st_size
+                st = os.fstat(f.fileno())
+                size, regular = st.st_size, stat.S_ISREG(st.st_mode)
             except OSError:
                 size = None
             if size and size > MAX_FILE_BYTES:  # refuse before reading a huge file
                 raise SceneError(source, "", f"file is {_size_text(size)}; the limit is {MAX_FILE_BYTES // MiB} MiB")
-            data = f.read(MAX_FILE_BYTES + 1)
+            # a pipe or device has no size: read in chunks, each checked
+            # (the command checked a file's size before reading it)
+            data = f.read(MAX_FILE_BYTES + 1) if size else _read_stream(f, source, memory)
     except OSError as e:
         raise SceneError(source, "", f"cannot read: {e.strerror or e}") from None
-    if memory is not None and not size:  # a pipe (the command checked a file's size before reading it)
-        refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(data), f"loading {source} ({len(data) / MiB:,.0f} MiB)")
     name = os.path.splitext(os.path.basename(source))[0]
     with _collector_paused(), images_shared():
         room = None if memory is None else min(MAX_VALUES, max(0, memory - current_rss()) // YAML_BYTES_PER_VALUE)
         doc = read_yaml(data, source, size=size, max_values=room)
         del data
-        return _scene_from_document(doc, source, name, consume=True, memory=memory)
+        return _scene_from_document(doc, source, name, consume=True, memory=memory, base=_relative_to(source, regular))
+
+
+STREAM_CHUNK = 1 << 20  # a pipe is read this much at a time, the budget checked after each
+
+
+def _read_stream(f, source: str, memory: int | None) -> bytes:
+    """Up to ``MAX_FILE_BYTES + 1`` bytes of a file without a size (a pipe,
+    ``/dev/stdin``, a character device), in chunks: with a ``memory``
+    budget, refused (:class:`MemoryBudgetError`) as soon as what has been
+    read could not be loaded within it, not after reading it all."""
+    buffer = bytearray()
+    while len(buffer) <= MAX_FILE_BYTES:
+        chunk = f.read(min(STREAM_CHUNK, MAX_FILE_BYTES + 1 - len(buffer)))
+        if not chunk:
+            break
+        buffer += chunk
+        del chunk
+        if memory is not None:
+            refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(buffer),
+                               f"loading {source} ({len(buffer) / MiB:,.0f} MiB read so far)")
+    return bytes(buffer)
+
+
+# Where a file descriptor is opened by name (bash's <(...), /dev/stdin): a
+# scene read there has no directory of its own
+_DESCRIPTOR_DIRECTORIES = ("/dev", "/dev/fd", "/proc/self/fd")
+
+
+def _relative_to(source: str, regular: bool) -> str:
+    """The directory a scene file's relative paths (meshes, textures) are
+    resolved against: the file's own, or the current directory ("") for a
+    scene read from standard input, a pipe or another file that is not a
+    regular file (``/dev/stdin``'s directory, /dev, means nothing)."""
+    directory = os.path.dirname(source)
+    if not regular or os.path.abspath(directory or ".") in _DESCRIPTOR_DIRECTORIES \
+            or re.fullmatch(r"/proc/[0-9]+/fd", os.path.abspath(directory or ".")):
+        return ""
+    return directory
 
 
 @contextlib.contextmanager
@@ -580,7 +622,11 @@ def scene_from_dict(doc: Any, *, source: str = "<scene>", default_name: str = "s
 
 
 def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: bool,
-                         memory: int | None = None) -> Scene:
+                         memory: int | None = None, base: str | None = None) -> Scene:
+    """``base``: the directory relative paths are resolved against (default:
+    ``source``'s, none for a ``<name>``)."""
+    if base is None:
+        base = "" if source.startswith("<") else os.path.dirname(source)
     top = _mapping(source, doc, "", {"name", "image", "camera", "render", "background", "materials",
                                      "spheres", "quads", "boxes", "triangles", "meshes", "media", "lights",
                                      "ambient"})
@@ -598,7 +644,6 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
         raise SceneError(source, "materials",
                          f"expected a mapping of names to materials, got {describe(materials_doc)}")
     materials = {}
-    base = "" if source.startswith("<") else os.path.dirname(source)
     for key, spec in materials_doc.items():
         if not isinstance(key, str):
             raise SceneError(source, "materials", f"material names must be strings, got {describe(key)}")
@@ -614,11 +659,14 @@ def _scene_from_document(doc: Any, source: str, default_name: str, *, consume: b
     spheres = _spheres(source, spheres_doc if spheres_doc is not None else [], defined, consume)
     del spheres_doc
     quads = _shapes(source, top.get("quads"), "quads", Quad, defined)
-    for box in _shapes(source, top.get("boxes"), "boxes", Box, defined):
-        quads.extend(box.quads())
+    for i, box in enumerate(_shapes(source, top.get("boxes"), "boxes", Box, defined)):
+        try:
+            quads.extend(box_faces(box, box, ""))
+        except SceneError as e:
+            raise e.within(source, f"boxes[{i}]") from None
     triangles = _shapes(source, top.get("triangles"), "triangles", Triangle, defined)
-    meshes = _meshes(source, top.get("meshes"), defined, memory)
-    media = _media(source, top.get("media"), memory, faces=sum(m.faces.shape[0] for m in meshes))
+    meshes = _meshes(source, top.get("meshes"), defined, memory, base=base)
+    media = _media(source, top.get("media"), memory, faces=sum(m.faces.shape[0] for m in meshes), base=base)
 
     lights_doc = top.get("lights") or []
     if not isinstance(lights_doc, list):
@@ -698,20 +746,27 @@ def _refuse_images_beyond(memory: int, source: str, path: str, spec) -> None:
             walk(spec.get(key), f"{path}.{key}")
 
 
+# References to the spheres list while _spheres reads it, when no alias
+# shares it: the caller's variable, the argument, and getrefcount's own
+_UNSHARED_REFERENCES = 3
+
+
 def _spheres(source: str, docs, defined: set[str], consume: bool) -> list[Sphere]:
     """The ``spheres`` list: in bulk when every entry is a mapping of exactly
     center, radius and material (see ``Sphere.many``), else one at a time.
     Either way the first problem in the file's order is the one reported."""
     if not isinstance(docs, list):
         raise SceneError(source, "spheres", f"expected a list, got {describe(docs)}")
-    if set(map(type, docs)) <= {dict} and all(map(operator.eq, map(dict.keys, docs), repeat(_SPHERE_KEYS))):
+    if set(map(type, docs)) <= {dict} and all(map(operator.eq, map(dict.keys, docs), repeat(_SPHERE_KEYS))) \
+            and set(map(type, materials := list(map(operator.itemgetter("material"), docs)))) <= {str}:
         centers = list(map(operator.itemgetter("center"), docs))
         radii = list(map(operator.itemgetter("radius"), docs))
-        materials = list(map(operator.itemgetter("material"), docs))
         unknown = {m for m in {m for m in materials if isinstance(m, str)}
                    if unicodedata.normalize("NFC", m) not in defined}
         end = next(i for i, m in enumerate(materials) if isinstance(m, str) and m in unknown) if unknown else None
-        if consume:
+        # the list itself is let go only when nothing else holds it: an alias
+        # (quads: *spheres) shares it, and must still see its entries
+        if consume and hasattr(sys, "getrefcount") and sys.getrefcount(docs) <= _UNSHARED_REFERENCES:
             docs.clear()
         try:
             spheres = Sphere.many(centers[:end], radii[:end], materials[:end])
@@ -734,10 +789,24 @@ def _shapes(source: str, docs, key: str, cls, defined: set[str]) -> list:
     shapes = []
     for i, spec in enumerate(docs):
         path = f"{key}[{i}]"
-        shape = _build(source, path, cls, _mapping(source, spec, path, allowed, required))
+        spec = _mapping(source, spec, path, allowed, required)
+        _material_name(source, path, spec)
+        shape = _build(source, path, cls, spec)
         _check_reference(source, path, shape.material, defined)
         shapes.append(shape)
     return shapes
+
+
+def _material_name(source: str, path: str, spec: dict) -> None:
+    """A scene file names a shape's material (``material: NAME``); an
+    unquoted number is not taken as an index into the materials (the
+    Python API's ``material=0`` still is)."""
+    value = spec.get("material")
+    if value is not None and not isinstance(value, str):
+        hint = f' (write material: "{value}" to name a material called {value})' if isinstance(value, int) \
+            and not isinstance(value, bool) else ""
+        raise SceneError(source, f"{path}.material", f"expected a material name (a string), got {describe(value)}"
+                                                     f"{hint}")
 
 
 def _check_reference(source: str, path: str, material, defined: set[str]) -> None:
@@ -759,7 +828,7 @@ MESH_LOAD_BYTES_PER_FILE_BYTE = 32
 MESH_LOAD_BYTES_PER_TRIANGLE = 512
 
 
-def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> list[Mesh]:
+def _meshes(source: str, docs, defined: set[str], memory: int | None = None, *, base: str | None = None) -> list[Mesh]:
     """Meshes read from files by trimesh, paths relative to the scene file.
 
     Every problem with a file names the scene file, the YAML path and the
@@ -772,11 +841,13 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None) -> 
         return []
     if not isinstance(docs, list):
         raise SceneError(source, "meshes", f"expected a list, got {describe(docs)}")
-    base = "" if source.startswith("<") else os.path.dirname(source)
+    if base is None:
+        base = "" if source.startswith("<") else os.path.dirname(source)
     meshes, total = [], 0
     for i, spec in enumerate(docs):
         path = f"meshes[{i}]"
         spec = _mapping(source, spec, path, _MESH_KEYS, {"file", "material"})
+        _material_name(source, path, spec)
         try:  # what can be checked before the file is read, by the Mesh's own rules
             name = string(Mesh, spec["file"], "file")
             mesh_fields(Mesh, spec)
@@ -802,7 +873,7 @@ _BOUNDARY_KEYS = {"sphere": ({"center", "radius", "transform"}, {"center", "radi
 _BOUNDARY_MATERIAL = 0  # a boundary is never shaded; its shape's material field is a placeholder
 
 
-def _media(source: str, docs, memory: int | None = None, faces: int = 0) -> list[Medium]:
+def _media(source: str, docs, memory: int | None = None, faces: int = 0, *, base: str | None = None) -> list[Medium]:
     """``media``: ``{boundary: {sphere | box | mesh: ...}, density, albedo}``
     each (see :mod:`wavefront.media`); a mesh boundary's file is read as a
     mesh's is, relative to the scene file, and must be closed.  ``faces``:
@@ -811,7 +882,8 @@ def _media(source: str, docs, memory: int | None = None, faces: int = 0) -> list
         return []
     if not isinstance(docs, list):
         raise SceneError(source, "media", f"expected a list, got {describe(docs)}")
-    base = "" if source.startswith("<") else os.path.dirname(source)
+    if base is None:
+        base = "" if source.startswith("<") else os.path.dirname(source)
     media = []
     for i, spec in enumerate(docs):
         path = f"media[{i}]"
@@ -828,6 +900,10 @@ def _media(source: str, docs, memory: int | None = None, faces: int = 0) -> list
             boundary = _build(source, where, Sphere, shape_doc, material=_BOUNDARY_MATERIAL)
         elif kind == "box":
             boundary = _build(source, where, Box, shape_doc, material=_BOUNDARY_MATERIAL)
+            try:
+                box_faces(boundary, boundary, "")
+            except SceneError as e:
+                raise e.within(source, where) from None
         else:
             boundary = _boundary_mesh(source, where, shape_doc, base, memory, mesh_files.MAX_MESH_FACES - faces)
             faces += boundary.faces.shape[0]

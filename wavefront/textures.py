@@ -42,7 +42,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from .validation import SceneError, color, describe, fail, first_line, integer, join, number, source_of, string
+from .validation import (MAX_COLOR, SceneError, color, describe, fail, first_line, integer, join, number, source_of,
+                         string)
 
 RGB = tuple[float, float, float]
 
@@ -262,7 +263,8 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         import imageio.v3 as iio
 
         try:
-            props = iio.improps(file)
+            with _without_pillows_size_limit():
+                props = iio.improps(file)
         except Exception as e:  # imageio's plugins raise many kinds; any of them means "not an image we read"
             fail(obj, "file", f"{file}: not an image imageio can read ({first_line(e)})")
         shape, images = props.shape, props.n_images or 1
@@ -273,6 +275,25 @@ def image_header(obj, file: str) -> tuple[str, int, int, int]:
         width, height, kind = int(shape[1]), int(shape[0]), "imageio"
     _too_big(obj, width, height, file)
     return kind, width, height, images
+
+
+@contextlib.contextmanager
+def _without_pillows_size_limit():
+    """Pillow's decompression-bomb check off while only a header is read:
+    past 89 M pixels it warned, past 179 M it raised, each in its own words;
+    wavefront's own limit (``MAX_TEXTURE_PIXELS``, far lower) follows from
+    the header's size, with its own message, before anything is decoded."""
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - imageio reads with other plugins then
+        yield
+        return
+    saved = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None
+    try:
+        yield
+    finally:
+        Image.MAX_IMAGE_PIXELS = saved
 
 
 def image_load_bytes(file: str) -> int | None:
@@ -338,7 +359,7 @@ def _decode_image(obj, file: str) -> np.ndarray:
         data = iio.imread(file, **options)
     except Exception as e:
         fail(obj, "file", f"{file}: cannot decode ({first_line(e)})")
-    return image_pixels(obj, data, path="file", size_checked=True)
+    return image_pixels(obj, data, path="file", size_checked=True, file=file)
 
 
 @contextlib.contextmanager
@@ -384,16 +405,19 @@ def _read_exr(obj, file: str) -> np.ndarray:
         data = channels[names["Y"]]
     else:
         fail(obj, "file", f"{file}: no R, G, B or Y channels (has {', '.join(sorted(channels))})")
-    return image_pixels(obj, np.asarray(data, dtype=np.float32), path="file", size_checked=True)
+    return image_pixels(obj, np.asarray(data, dtype=np.float32), path="file", size_checked=True, file=file)
 
 
-def image_pixels(obj, data, path: str = "pixels", size_checked: bool = False) -> np.ndarray:
+def image_pixels(obj, data, path: str = "pixels", size_checked: bool = False, file: str | None = None) -> np.ndarray:
     """An image array as linear float32 RGB ``(height, width, 3)``.
 
     Integer images (8 or 16 bits) are sRGB-encoded: decoded with
     colour-science's sRGB ``cctf_decoding``, through a lookup table of every
     code value (exactly colour's numbers, at a table lookup's cost).  Float
-    images are linear already."""
+    images are linear already, and held to the limits of a literal colour:
+    finite, >= 0 and at most ``MAX_COLOR``.  ``file`` (the image's) is named
+    in the messages."""
+    where = f"{file}: " if file else ""
     a = np.asarray(data)
     if a.ndim == 2:
         a = a[:, :, None]
@@ -415,9 +439,11 @@ def image_pixels(obj, data, path: str = "pixels", size_checked: bool = False) ->
         fail(obj, path, f"unsupported pixel type {a.dtype}")
     out = np.ascontiguousarray(a, dtype=np.float32)
     if not np.isfinite(out).all():
-        fail(obj, path, "the image holds NaN or infinite values")
+        fail(obj, path, f"{where}the image holds NaN or infinite values")
     if (out < 0).any():
-        fail(obj, path, "the image holds negative values (a colour is >= 0)")
+        fail(obj, path, f"{where}the image holds negative values (a colour is >= 0)")
+    if out.size and out.max() > MAX_COLOR:  # as a literal colour: beyond it a render's float32 overflows
+        fail(obj, path, f"{where}the image holds values up to {float(out.max()):g}; a colour is at most {MAX_COLOR:g}")
     return out
 
 
