@@ -319,12 +319,20 @@ def scatter_dielectric(direction, normal, front_face, refraction_index, u):
     reflection).  Glass absorbs nothing: attenuation is 1.
     """
     ratio = np.where(front_face, 1.0 / refraction_index, refraction_index)
-    cos_theta = np.minimum(-dot(direction, normal), 1.0)
-    sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
+    # cos = min(-d.n, 1) and sin = sqrt(max(0, 1 - cos^2)), each in its own
+    # array in place (the same operations, fewer temporaries)
+    cos_theta = dot(direction, normal)
+    np.negative(cos_theta, out=cos_theta)
+    np.minimum(cos_theta, 1.0, out=cos_theta)
+    sin_theta = np.multiply(cos_theta, cos_theta)
+    np.subtract(1.0, sin_theta, out=sin_theta)
+    np.maximum(0.0, sin_theta, out=sin_theta)
+    np.sqrt(sin_theta, out=sin_theta)
     total_internal = ratio * sin_theta > 1.0
-    mirror = true_rows(total_internal | (schlick(cos_theta, ratio) > u[0]))
-    scattered = refract(direction, normal, ratio)
+    total_internal |= schlick(cos_theta, ratio) > u[0]
+    mirror = true_rows(total_internal)
+    scattered = refract(direction, normal, ratio, cos_theta)  # the cosine just taken, not again
     # rows that mirror are few and random: write them by index, not with a where
     scatter(scattered, mirror, reflect(gather(direction, mirror), gather(normal, mirror)))
     n = direction.shape[1]
-    return np.ones((3, n), dtype=direction.dtype), normalize(scattered), np.zeros(n, dtype=bool)
+    return np.ones((3, n), dtype=direction.dtype), normalize(scattered, out=scattered), np.zeros(n, dtype=bool)

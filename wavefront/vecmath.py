@@ -54,8 +54,10 @@ def length(v: np.ndarray) -> np.ndarray:
     return np.sqrt(n, out=n)
 
 
-def normalize(v: np.ndarray) -> np.ndarray:
-    """Unit vectors along each column of ``v`` (shape ``(3, N)``).
+def normalize(v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Unit vectors along each column of ``v`` (shape ``(3, N)``), into
+    ``out`` if given (which may be ``v`` itself: the same numbers, without
+    a (3, N) temporary).
 
     A zero column stays zero instead of becoming NaN; callers that can produce
     degenerate vectors handle them explicitly before calling this.
@@ -63,7 +65,7 @@ def normalize(v: np.ndarray) -> np.ndarray:
     n = length(v)
     # 0 * (1 / tiny) = 0 keeps a zero column zero, without a branchy where
     np.maximum(n, np.finfo(n.dtype).tiny, out=n)
-    return v * np.divide(1.0, n, out=n)
+    return np.multiply(v, np.divide(1.0, n, out=n), out=out)
 
 
 def reflect(v: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -75,7 +77,8 @@ def reflect(v: np.ndarray, n: np.ndarray) -> np.ndarray:
     return v - 2.0 * dot(v, n) * n
 
 
-def refract(uv: np.ndarray, n: np.ndarray, eta_ratio: np.ndarray | float) -> np.ndarray:
+def refract(uv: np.ndarray, n: np.ndarray, eta_ratio: np.ndarray | float,
+            cos_theta: np.ndarray | None = None) -> np.ndarray:
     """Refract unit direction ``uv`` through a surface with unit normal ``n``.
 
     ``n`` faces against ``uv`` (``uv.n <= 0``) and ``eta_ratio`` is
@@ -84,11 +87,28 @@ def refract(uv: np.ndarray, n: np.ndarray, eta_ratio: np.ndarray | float) -> np.
     ``eta_ratio``) and a part along ``-n`` that restores unit length.  Callers
     must have ruled out total internal reflection (``eta_ratio * sin_theta >
     1``); there the parallel part is clamped to zero rather than NaN.
+    ``cos_theta``, if given, is ``min(-uv.n, 1)`` already computed (the
+    glass kernel's), not computed again.
     """
-    cos_theta = np.minimum(-dot(uv, n), 1.0)
-    r_perp = eta_ratio * (uv + cos_theta * n)
-    r_parallel = -np.sqrt(np.abs(1.0 - dot(r_perp, r_perp))) * n
-    return r_perp + r_parallel
+    if cos_theta is None:
+        cos_theta = np.minimum(-dot(uv, n), 1.0)
+    if not uv.dtype == n.dtype == np.result_type(uv, n, cos_theta, eta_ratio):
+        r_perp = eta_ratio * (uv + cos_theta * n)  # mixed precisions: promoted as written
+        r_parallel = -np.sqrt(np.abs(1.0 - dot(r_perp, r_perp))) * n
+        return r_perp + r_parallel
+    # eta (uv + cos n) - sqrt|1 - |r_perp|^2| n in place, one (3, N) temporary
+    # fewer than as written above (sums and products commute exactly: the
+    # same numbers)
+    r_perp = cos_theta * n
+    r_perp += uv
+    r_perp *= eta_ratio
+    s = dot(r_perp, r_perp)
+    np.subtract(1.0, s, out=s)
+    np.abs(s, out=s)
+    np.sqrt(s, out=s)
+    np.negative(s, out=s)
+    r_perp += s * n
+    return r_perp
 
 
 def schlick(cosine: np.ndarray, eta_ratio: np.ndarray | float) -> np.ndarray:
