@@ -205,6 +205,43 @@ def kernels_present(table):
     return out
 
 
+@dataclass(slots=True)
+class KernelGroups:
+    """How stage 3 groups the hits by the scatter kernel that serves them
+    (see :func:`escaped`): ``of_primitive`` ``(M + 1,)`` int8 is the index
+    in ``kernels`` of each primitive's kernel, ``len(kernels)`` for none
+    (emitters), and -1 in its last entry (a miss's primitive index, -1,
+    reads it); ``glass`` the index of the dielectric kernel, or None."""
+
+    of_primitive: np.ndarray
+    count: int  # groups: the kernels, and one more if some primitive has none
+    glass: int | None
+
+    @classmethod
+    def build(cls, cs: CompiledScene, kernels) -> KernelGroups | None:
+        """None where there is nothing to group (fewer than two kernels)."""
+        if len(kernels) < 2:
+            return None
+        table = cs.materials
+        of_material = np.full(table.kind.shape, len(kernels), dtype=np.int8)
+        glass = None
+        for k, (codes, _) in enumerate(kernels):
+            of_material[np.isin(table.kind, codes)] = k
+            if tuple(codes) == (table.code("dielectric"),):
+                glass = k
+        of_primitive = np.append(of_material.take(cs.shapes.material_idx), np.int8(-1))
+        return cls(of_primitive, int(of_primitive.max()) + 1, glass)
+
+    def order(self, primitive_idx) -> tuple[np.ndarray, list[tuple[int, int]]]:
+        """The rows that hit something, kernel 0's first, then kernel 1's,
+        ..., then those of no kernel, each group in batch order; and each
+        kernel's run ``(start, stop)`` in that order."""
+        group = self.of_primitive.take(primitive_idx)
+        rows = [true_rows(group == k) for k in range(self.count)]
+        stops = np.cumsum([r.size for r in rows]).tolist()
+        return (np.concatenate(rows) if rows else true_rows(group >= 0)), list(zip([0] + stops[:-1], stops))
+
+
 def begin_trace(cs: CompiledScene, job: Job, stats: TraceStats | None):
     """What every integrator starts from: the camera frame, a zeroed
     per-sample radiance buffer and the counters (the job's samples counted)."""
@@ -225,6 +262,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     """
     scene, frame, radiance, stats = begin_trace(cs, job, stats)
     kernels = kernels_present(cs.materials)
+    groups = KernelGroups.build(cs, kernels)
     settings = scene.render
     sampler = render_sampler(cs, key)
     emitters = cs.emitters if settings.light_sampling and cs.emitters is not None and len(cs.emitters) else None
@@ -247,7 +285,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             live, hits, in_medium, point = travel_media(cs, sampler, live, hits, first)
             if len(in_medium):
                 in_medium, shadows = scatter_in_media(cs, sampler, in_medium, point, emitters)
-        live, surface, gone = escaped(cs, live, hits, radiance)
+        live, surface, gone, runs = escaped(cs, live, hits, radiance, groups)
         if len(live):
             drawn = draw_together(cs, sampler, live, emitters, roulette)
             kind = cs.materials.kind.take(surface.material_idx)  # each hit's material kind, taken once a bounce
@@ -259,9 +297,10 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
                                                                     absorbed, settings.depth, albedo, drawn))
         if len(live):
-            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn, kind)
+            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn, kind, runs)
             if diffuse is not None:
-                record_sampling(cs, live, surface, diffuse, direction, kind)
+                record_sampling(cs, live, surface, diffuse, direction, kind,
+                                None if runs is None or groups.glass is None else runs[groups.glass])
             if roulette is not None:
                 absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, drawn)
             if cs.media is not None:
@@ -318,10 +357,11 @@ def intersect_with_shadows(cs: CompiledScene, live: PathBatch, shadows: ShadowBa
     return Hits(hits.t[:n], hits.primitive_idx[:n])
 
 
-def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
+def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGroups | None = None):
     """Stage 3: paths that hit nothing add ``throughput * background`` and
-    end.  Returns the paths, what they hit, and which of them escaped (None:
-    none are left in the batch).
+    end.  Returns the paths, what they hit, which of them escaped (None:
+    none are left in the batch), and the runs of rows of each scatter kernel
+    (None: the rows are not grouped).
 
     Where few escaped (at most ``ESCAPED_KEPT_FRACTION``: cornell_spheres'
     open front loses ~1 % a bounce) they stay in the batch until stage 9
@@ -332,12 +372,16 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     absorbed rows or works row by row and drops them at the end (no random
     number depends on a row's position), so the image is the same, and one
     compaction of every field is saved per bounce.  Otherwise only the hit
-    rows go on.
+    rows go on, grouped by the scatter kernel that serves them (given
+    ``groups``): stage 7 then runs each kernel on a slice of the batch (no
+    gathers or scatters, and no kernel over rows another one's results
+    overwrite), and stage 7b finds the glass rows there.  No stage reads a
+    path's position in the batch (see :func:`advance`).
     """
     hit = hits.primitive_idx >= 0
     esc_idx = true_rows(~hit)
     t, primitive_idx = hits.t, hits.primitive_idx
-    gone = None
+    gone = runs = None
     if esc_idx.size:
         scatter_add(radiance, live.slot.take(esc_idx),
                     gather(live.throughput, esc_idx) * cs.scene.background.radiance(gather(live.direction, esc_idx)))
@@ -346,10 +390,13 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
             t, primitive_idx = t.copy(), primitive_idx.copy()
             t[esc_idx], primitive_idx[esc_idx] = 0, 0
         else:
-            hit_idx = true_rows(hit)
+            if groups is None:
+                hit_idx = true_rows(hit)
+            else:
+                hit_idx, runs = groups.order(primitive_idx)
             live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
     if len(live) == 0:
-        return live, None, None
+        return live, None, None, None
     surface = cs.shapes.surface(live.origin, live.direction, t, primitive_idx, uv=cs.materials.needs_uv, time=live.time)
     if gone is not None:  # the stand-ins' normals: their own rays reversed (surface's arrays are its own)
         facing = -gather(live.direction, esc_idx)
@@ -359,7 +406,7 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
         surface.front_face[esc_idx] = True
         if surface.uv is not None:
             surface.uv[:, esc_idx] = 0
-    return live, surface, gone
+    return live, surface, gone, runs
 
 
 @dataclass(slots=True)
@@ -554,12 +601,13 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
 
 
 def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None,
-                 drawn: DrawnUniforms | None = None, kind=None):
+                 drawn: DrawnUniforms | None = None, kind=None, runs=None):
     """Stage 7: hits are routed by material kind, one kernel per kind present;
     throughput is multiplied by the attenuation (``albedo (3, N)``: the hits'
     textured albedo, if any; ``drawn``: the uniforms, and ``kind``, the
-    hits' material kinds, if taken already).  Returns the new directions and
-    the ``absorbed`` mask."""
+    hits' material kinds, if taken already; ``runs``: each kernel's rows,
+    ``(start, stop)``, if stage 3 grouped them).  Returns the new directions
+    and the ``absorbed`` mask."""
     table = cs.materials
     material, normal, front_face = surface.material_idx, surface.normal, surface.front_face
     if kind is None:
@@ -571,6 +619,19 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
         live.throughput *= att
         return direction, dead | absorbed
+    if runs is not None:
+        # each kernel on its slice of the batch: no gathers or scatters (rows
+        # of no kernel, emitters, are absorbed and keep theirs)
+        direction = live.direction  # overwritten run by run
+        for (start, stop), (_, kernel) in zip(runs, kernels):
+            if stop > start:
+                run = slice(start, stop)
+                att, d, dead = kernel(table, material[run], direction[:, run], normal[:, run], front_face[run],
+                                      u[:, run], None if albedo is None else albedo[:, run])
+                live.throughput[:, run] *= att
+                direction[:, run] = d
+                absorbed[run] |= dead
+        return direction, absorbed
     routes = [(true_rows(np.isin(table.kind, codes).take(material) if len(codes) > 1 else kind == codes[0]), kernel)
               for codes, kernel in kernels]
     routes = [(sel, kernel) for sel, kernel in routes if sel.size]
@@ -601,13 +662,15 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
     return direction, absorbed
 
 
-def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direction, kind=None) -> None:
+def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direction, kind=None,
+                    glass_run: tuple[int, int] | None = None) -> None:
     """After scattering: what the next vertex's MIS weight and roulette need.
 
     Lambertian rows sampled ``cos / pi`` (taken about the same shading
     normal the kernel used); every other kind is a delta, whose ``bsdf_pdf``
     is never read.  Refraction multiplies ``eta^2`` by the squared relative
-    index crossed (``kind``: the hits' material kinds, if taken already).
+    index crossed (``kind``: the hits' material kinds, if taken already;
+    ``glass_run``: the glass rows' ``(start, stop)``, if stage 3 grouped them).
     """
     table = cs.materials
     if kind is None:
@@ -620,6 +683,16 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
     # where zeroing the others cost ~50 us of a 32 Ki path bounce (its
     # random mask mispredicts), ~0.5 % of the bounce.
     live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
+    if glass_run is not None:
+        # a transmitted direction leaves on the far side of the (ray-facing) normal
+        start, stop = glass_run
+        through = true_rows(dot(surface.normal[:, start:stop], direction[:, start:stop]) < 0.0)
+        through += start
+        if through.size:
+            index = table.refraction_index.take(surface.material_idx.take(through)).astype(np.float64)
+            eta = np.where(surface.front_face.take(through), index, 1.0 / index)  # n_transmitted / n_incident
+            live.eta_scale[through] *= eta * eta
+        return
     glass = true_rows(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
