@@ -146,11 +146,11 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     pixel, sample_id = job.samples(start, stop)
     state = sampler.start(pixel, sample_id)
     u = sampler.pairs(state, 0)  # pixel jitter
-    if frame.has_defocus:  # a pinhole never reads the lens pair: not drawing it changes no number
-        u = np.concatenate((u, sampler.pairs(state, 1)))
+    # a pinhole never reads the lens pair: not drawing it changes no number
+    lens = sampler.pairs(state, 1) if frame.has_defocus else None
     if pixel_centres:
         u[:2] = 0.5
-    origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
+    origin, direction = frame.generate_rays(pixel, u, lens)  # in float64, then at the render's precision
     origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
