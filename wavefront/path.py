@@ -52,6 +52,7 @@ in full, as do those seen straight from the camera.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -238,7 +239,7 @@ class KernelGroups:
         kernel's run ``(start, stop)`` in that order."""
         group = self.of_primitive.take(primitive_idx)
         rows = [true_rows(group == k) for k in range(self.count)]
-        stops = np.cumsum([r.size for r in rows]).tolist()
+        stops = list(itertools.accumulate(r.size for r in rows))  # a few Python ints: no NumPy call
         return (np.concatenate(rows) if rows else true_rows(group >= 0)), list(zip([0] + stops[:-1], stops))
 
 
