@@ -54,15 +54,16 @@ def length(v: np.ndarray) -> np.ndarray:
     return np.sqrt(n, out=n)
 
 
-def normalize(v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+def normalize(v: np.ndarray, out: np.ndarray | None = None, squared_length: np.ndarray | None = None) -> np.ndarray:
     """Unit vectors along each column of ``v`` (shape ``(3, N)``), into
     ``out`` if given (which may be ``v`` itself: the same numbers, without
-    a (3, N) temporary).
+    a (3, N) temporary).  ``squared_length``, if given, is ``dot(v, v)``
+    already taken (it is overwritten).
 
     A zero column stays zero instead of becoming NaN; callers that can produce
     degenerate vectors handle them explicitly before calling this.
     """
-    n = length(v)
+    n = length(v) if squared_length is None else np.sqrt(squared_length, out=squared_length)
     # 0 * (1 / tiny) = 0 keeps a zero column zero, without a branchy where
     np.maximum(n, np.finfo(n.dtype).tiny, out=n)
     return np.multiply(v, np.divide(1.0, n, out=n), out=out)
