@@ -393,7 +393,10 @@ class Primitives:
                     coords[:, sel] = c
         front_face = dot(direction, outward) < 0.0
         sign = 2 * front_face.astype(outward.dtype) - 1  # flip to face the ray; cheaper than a (3, N) where
-        geometric = outward * sign
-        normal = geometric if shading is outward else shading * sign
+        normal = None if shading is outward else shading * sign
+        # flipped in place: every kind's outward normals are a new array of
+        # its own (gathered from its table or computed), as is the one above
+        geometric = np.multiply(outward, sign, out=outward)
+        normal = geometric if normal is None else normal
         return SurfaceHits(point=point, normal=normal, geometric_normal=geometric, front_face=front_face,
                            material_idx=self.material_idx.take(idx), primitive_idx=idx, uv=coords)
