@@ -75,7 +75,12 @@ def reflect(v: np.ndarray, n: np.ndarray) -> np.ndarray:
     The tangential part of ``v`` is kept and the normal part flipped, so the
     angle of incidence equals the angle of reflection and ``|r| = |v|``.
     """
-    return v - 2.0 * dot(v, n) * n
+    r = dot(v, n)
+    r *= 2.0
+    r = r * n
+    if r.dtype != np.result_type(v, r):
+        return v - r
+    return np.subtract(v, r, out=r)  # v - (2 (v.n)) n, as written, into the product's array
 
 
 def refract(uv: np.ndarray, n: np.ndarray, eta_ratio: np.ndarray | float,
