@@ -153,8 +153,23 @@ def true_rows(mask: np.ndarray) -> np.ndarray:
 
 def scatter_add(acc: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
     """``acc[:, idx] += values`` for *unique* ``idx``; ``acc`` is (C, S)."""
+    if idx.size >= ADD_AT_MIN and np.result_type(acc, values) == acc.dtype:
+        # in acc's type first (exact: float32 to float64, as the mixed add
+        # below promotes): add.at with a cast per element is ~20x slower
+        values = values.astype(acc.dtype, copy=False)
+        for row, value in zip(acc, values):
+            _add_at(row, idx, value)  # one addition per (unique) index: the same sums
+        return
     for row, value in zip(acc, values):
         row[idx] = row.take(idx) + value
+
+
+# From this many indices ``np.add.at`` (fast on 1-D arrays since NumPy 1.25)
+# beats a take, an add and a fancy assignment per row, measured on rows of a
+# job's 280 Ki samples: 3 Ki indices 15 against 26 us, 30 Ki 232 against 503;
+# equal at ~100, a little slower below.
+ADD_AT_MIN = 128
+_add_at = np.add.at
 
 
 def scatter(acc: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
