@@ -138,11 +138,14 @@ def render_sampler(cs: CompiledScene, key) -> Sampler:
 
 
 def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: int, stop: int,
-                 pixel_centres: bool = False) -> PathBatch:
+                 pixel_centres: bool = False, before: PathBatch | None = None) -> PathBatch:
     """Stage 1: new paths for the job's slots ``start:stop``.
 
     ``pixel_centres`` puts every sample at its pixel's centre instead of
-    jittering it (classic Whitted with one sample per pixel).
+    jittering it (classic Whitted with one sample per pixel).  ``before``:
+    paths in flight, if any: the result is then ``PathBatch.concat(before,
+    <the new paths>)``, each new field written once, into its place in the
+    joined array (not made on its own and copied again: ~70 bytes a path).
     """
     pixel, sample_id = job.samples(start, stop)
     state = sampler.start(pixel, sample_id)
@@ -152,11 +155,13 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     if pixel_centres:
         u[:2] = 0.5
     origin, direction = frame.generate_rays(pixel, u, lens)  # in float64, then at the render's precision
-    origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
     time = sampler.uniform(state, TIME_PAIR, 0) if cs.shapes.moving else None
+    if before is not None and len(before):
+        return _joined_camera_paths(cs, before, n, origin, direction, start, stop, state, time)
+    origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -170,6 +175,38 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
         time=time,
         # camera rays start in the media around the camera
         media_mask=None if cs.media is None else np.full(n, cs.media.camera_mask, dtype=np.uint64),
+    )
+
+
+def _joined_camera_paths(cs: CompiledScene, before: PathBatch, n: int, origin, direction, start, stop, state,
+                         time) -> PathBatch:
+    """``PathBatch.concat(before, new)`` of the ``n`` new camera paths that
+    :func:`camera_paths` would make, field by field the same values and types
+    (a field None in either is None)."""
+    m = len(before)
+
+    def joined(old, value, dtype, rows=None):
+        """``old`` then ``n`` new columns set to ``value`` (cast as astype would)."""
+        if old is None or (value is None):
+            return None
+        out = np.empty((m + n,) if rows is None else (rows, m + n), dtype=np.result_type(old.dtype, dtype))
+        out[..., :m] = old
+        np.copyto(out[..., m:], value, casting="unsafe")
+        return out
+
+    media = cs.media
+    return PathBatch(
+        origin=joined(before.origin, origin, cs.dtype, 3),
+        direction=joined(before.direction, direction, cs.dtype, 3),
+        throughput=joined(before.throughput, 1, cs.dtype, 3),
+        slot=joined(before.slot, np.arange(start, stop, dtype=np.int64), np.int64),
+        state=joined(before.state, state, state.dtype),
+        depth=joined(before.depth, 0, np.int32),
+        bsdf_pdf=joined(before.bsdf_pdf, 0.0, np.float64),
+        specular=joined(before.specular, True, bool),
+        eta_scale=joined(before.eta_scale, 1.0, np.float64),
+        time=joined(before.time, time, time.dtype if time is not None else np.float64),
+        media_mask=None if media is None else joined(before.media_mask, media.camera_mask, np.uint64),
     )
 
 
@@ -335,7 +372,7 @@ def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch
     free = capacity - len(live)
     if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
         stop = min(job.size, next_slot + free)
-        live = PathBatch.concat(live, camera_paths(cs, frame, sampler, job, next_slot, stop))
+        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live)
         next_slot = stop
     return live, next_slot
 
