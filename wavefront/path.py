@@ -187,7 +187,7 @@ def _joined_camera_paths(cs: CompiledScene, before: PathBatch, n: int, origin, d
 
     def joined(old, value, dtype, rows=None):
         """``old`` then ``n`` new columns set to ``value`` (cast as astype would)."""
-        if old is None or (value is None):
+        if old is None or value is None:
             return None
         out = np.empty((m + n,) if rows is None else (rows, m + n), dtype=np.result_type(old.dtype, dtype))
         out[..., :m] = old
