@@ -181,7 +181,7 @@ class CameraFrame:
     defocus_v: np.ndarray
     has_defocus: bool
 
-    def generate_rays(self, pixel: np.ndarray, u: np.ndarray):
+    def generate_rays(self, pixel: np.ndarray, u: np.ndarray, lens: np.ndarray | None = None):
         """Primary rays for flat pixel indices, jittered over the pixel square.
 
         Parameters
@@ -191,6 +191,9 @@ class CameraFrame:
         u : ndarray of shape (4, N), or (2, N) without defocus
             Uniforms: pixel jitter x, y and lens sample u, v (read only
             with defocus).
+        lens : ndarray of shape (2, N), optional
+            The lens sample, if not in ``u`` (then (2, N)): the sampler's
+            two pairs are not copied into one array.
 
         Returns
         -------
@@ -200,10 +203,11 @@ class CameraFrame:
         origin, direction = np.empty((3, n)), np.empty((3, n))
         for i in range(0, n, RAY_BLOCK):
             j = min(n, i + RAY_BLOCK)
-            self._rays(pixel[i:j], u[:, i:j], origin[:, i:j], direction[:, i:j])
+            self._rays(pixel[i:j], u[:, i:j], origin[:, i:j], direction[:, i:j],
+                       u[2:, i:j] if lens is None else lens[:, i:j])
         return origin, direction
 
-    def _rays(self, pixel, u, origin, target) -> None:
+    def _rays(self, pixel, u, origin, target, lens) -> None:
         """:meth:`generate_rays` for one block of rays, written into ``origin``
         and ``target`` (views of the results; ``target`` ends as the unit
         direction)."""
@@ -226,7 +230,7 @@ class CameraFrame:
             target[k] += self.upper_left[k]
             target[k] += np.multiply(y, self.pixel_delta_v[k], out=scratch)
         if self.has_defocus:
-            disk = random_in_unit_disk(u[2], u[3])
+            disk = random_in_unit_disk(lens[0], lens[1])
             for k in range(3):
                 np.multiply(disk[0], self.defocus_u[k], out=origin[k])
                 origin[k] += self.center[k]

@@ -273,12 +273,19 @@ def scatter_lambertian(direction, normal, front_face, albedo, u):
     density ``cos(theta) / pi`` over the hemisphere (RTIOW 1, "True Lambertian
     Reflection"), so the attenuation is just the albedo.  Never absorbs.
     """
-    scattered = normal + random_unit_vector(u[0], u[1])
-    degenerate = true_rows(dot(scattered, scattered) < DEGENERATE_SQUARED_LENGTH)
+    scattered = random_unit_vector(u[0], u[1])
+    if scattered.dtype == np.result_type(scattered, normal):
+        scattered += normal  # normal + v in v's array (a sum commutes exactly)
+    else:
+        scattered = normal + scattered
+    squared = dot(scattered, scattered)  # the test's, then normalize's
+    degenerate = true_rows(squared < DEGENERATE_SQUARED_LENGTH)
     if degenerate.size:  # rare rows: by index, not a where (and no gather or scatter of none)
-        scatter(scattered, degenerate, gather(normal, degenerate))
+        fallback = gather(normal, degenerate)
+        scatter(scattered, degenerate, fallback)
+        squared[degenerate] = dot(fallback, fallback)  # their new columns' (dot works column by column)
     absorbed = np.zeros(direction.shape[1], dtype=bool)
-    return albedo, normalize(scattered), absorbed
+    return albedo, normalize(scattered, out=scattered, squared_length=squared), absorbed
 
 
 def lambertian_pdf(normal, direction):
@@ -305,10 +312,15 @@ def scatter_metal(direction, normal, front_face, albedo, fuzz, u):
     Rows whose scattered direction does not point above the surface
     (``d.n <= 0``) are absorbed, as in the lesson.
     """
-    reflected = normalize(reflect(direction, normal))
-    scattered = reflected + fuzz * random_unit_vector(u[0], u[1])
+    reflected = reflect(direction, normal)
+    normalize(reflected, out=reflected)
+    scattered = fuzz * random_unit_vector(u[0], u[1])
+    if scattered.dtype == np.result_type(scattered, reflected):
+        scattered += reflected  # reflected + jitter in the jitter's array (a sum commutes exactly)
+    else:
+        scattered = reflected + scattered
     absorbed = dot(scattered, normal) <= 0.0
-    return albedo, normalize(scattered), absorbed
+    return albedo, normalize(scattered, out=scattered), absorbed
 
 
 def scatter_dielectric(direction, normal, front_face, refraction_index, u):
@@ -319,12 +331,20 @@ def scatter_dielectric(direction, normal, front_face, refraction_index, u):
     reflection).  Glass absorbs nothing: attenuation is 1.
     """
     ratio = np.where(front_face, 1.0 / refraction_index, refraction_index)
-    cos_theta = np.minimum(-dot(direction, normal), 1.0)
-    sin_theta = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
+    # cos = min(-d.n, 1) and sin = sqrt(max(0, 1 - cos^2)), each in its own
+    # array in place (the same operations, fewer temporaries)
+    cos_theta = dot(direction, normal)
+    np.negative(cos_theta, out=cos_theta)
+    np.minimum(cos_theta, 1.0, out=cos_theta)
+    sin_theta = np.multiply(cos_theta, cos_theta)
+    np.subtract(1.0, sin_theta, out=sin_theta)
+    np.maximum(0.0, sin_theta, out=sin_theta)
+    np.sqrt(sin_theta, out=sin_theta)
     total_internal = ratio * sin_theta > 1.0
-    mirror = true_rows(total_internal | (schlick(cos_theta, ratio) > u[0]))
-    scattered = refract(direction, normal, ratio)
+    total_internal |= schlick(cos_theta, ratio) > u[0]
+    mirror = true_rows(total_internal)
+    scattered = refract(direction, normal, ratio, cos_theta)  # the cosine just taken, not again
     # rows that mirror are few and random: write them by index, not with a where
     scatter(scattered, mirror, reflect(gather(direction, mirror), gather(normal, mirror)))
     n = direction.shape[1]
-    return np.ones((3, n), dtype=direction.dtype), normalize(scattered), np.zeros(n, dtype=bool)
+    return np.ones((3, n), dtype=direction.dtype), normalize(scattered, out=scattered), np.zeros(n, dtype=bool)

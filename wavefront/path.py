@@ -52,6 +52,7 @@ in full, as do those seen straight from the camera.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,25 +138,30 @@ def render_sampler(cs: CompiledScene, key) -> Sampler:
 
 
 def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: int, stop: int,
-                 pixel_centres: bool = False) -> PathBatch:
+                 pixel_centres: bool = False, before: PathBatch | None = None) -> PathBatch:
     """Stage 1: new paths for the job's slots ``start:stop``.
 
     ``pixel_centres`` puts every sample at its pixel's centre instead of
-    jittering it (classic Whitted with one sample per pixel).
+    jittering it (classic Whitted with one sample per pixel).  ``before``:
+    paths in flight, if any: the result is then ``PathBatch.concat(before,
+    <the new paths>)``, each new field written once, into its place in the
+    joined array (not made on its own and copied again: ~70 bytes a path).
     """
     pixel, sample_id = job.samples(start, stop)
     state = sampler.start(pixel, sample_id)
     u = sampler.pairs(state, 0)  # pixel jitter
-    if frame.has_defocus:  # a pinhole never reads the lens pair: not drawing it changes no number
-        u = np.concatenate((u, sampler.pairs(state, 1)))
+    # a pinhole never reads the lens pair: not drawing it changes no number
+    lens = sampler.pairs(state, 1) if frame.has_defocus else None
     if pixel_centres:
         u[:2] = 0.5
-    origin, direction = frame.generate_rays(pixel, u)  # in float64, then at the render's precision
-    origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
+    origin, direction = frame.generate_rays(pixel, u, lens)  # in float64, then at the render's precision
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
     time = sampler.uniform(state, TIME_PAIR, 0) if cs.shapes.moving else None
+    if before is not None and len(before):
+        return _joined_camera_paths(cs, before, n, origin, direction, start, stop, state, time)
+    origin, direction = origin.astype(cs.dtype, copy=False), direction.astype(cs.dtype, copy=False)
     return PathBatch(
         origin=origin,
         direction=direction,
@@ -169,6 +175,38 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
         time=time,
         # camera rays start in the media around the camera
         media_mask=None if cs.media is None else np.full(n, cs.media.camera_mask, dtype=np.uint64),
+    )
+
+
+def _joined_camera_paths(cs: CompiledScene, before: PathBatch, n: int, origin, direction, start, stop, state,
+                         time) -> PathBatch:
+    """``PathBatch.concat(before, new)`` of the ``n`` new camera paths that
+    :func:`camera_paths` would make, field by field the same values and types
+    (a field None in either is None)."""
+    m = len(before)
+
+    def joined(old, value, dtype, rows=None):
+        """``old`` then ``n`` new columns set to ``value`` (cast as astype would)."""
+        if old is None or value is None:
+            return None
+        out = np.empty((m + n,) if rows is None else (rows, m + n), dtype=np.result_type(old.dtype, dtype))
+        out[..., :m] = old
+        np.copyto(out[..., m:], value, casting="unsafe")
+        return out
+
+    media = cs.media
+    return PathBatch(
+        origin=joined(before.origin, origin, cs.dtype, 3),
+        direction=joined(before.direction, direction, cs.dtype, 3),
+        throughput=joined(before.throughput, 1, cs.dtype, 3),
+        slot=joined(before.slot, np.arange(start, stop, dtype=np.int64), np.int64),
+        state=joined(before.state, state, state.dtype),
+        depth=joined(before.depth, 0, np.int32),
+        bsdf_pdf=joined(before.bsdf_pdf, 0.0, np.float64),
+        specular=joined(before.specular, True, bool),
+        eta_scale=joined(before.eta_scale, 1.0, np.float64),
+        time=joined(before.time, time, time.dtype if time is not None else np.float64),
+        media_mask=None if media is None else joined(before.media_mask, media.camera_mask, np.uint64),
     )
 
 
@@ -205,6 +243,43 @@ def kernels_present(table):
     return out
 
 
+@dataclass(slots=True)
+class KernelGroups:
+    """How stage 3 groups the hits by the scatter kernel that serves them
+    (see :func:`escaped`): ``of_primitive`` ``(M + 1,)`` int8 is the index
+    in ``kernels`` of each primitive's kernel, ``len(kernels)`` for none
+    (emitters), and -1 in its last entry (a miss's primitive index, -1,
+    reads it); ``glass`` the index of the dielectric kernel, or None."""
+
+    of_primitive: np.ndarray
+    count: int  # groups: the kernels, and one more if some primitive has none
+    glass: int | None
+
+    @classmethod
+    def build(cls, cs: CompiledScene, kernels) -> KernelGroups | None:
+        """None where there is nothing to group (fewer than two kernels)."""
+        if len(kernels) < 2:
+            return None
+        table = cs.materials
+        of_material = np.full(table.kind.shape, len(kernels), dtype=np.int8)
+        glass = None
+        for k, (codes, _) in enumerate(kernels):
+            of_material[np.isin(table.kind, codes)] = k
+            if tuple(codes) == (table.code("dielectric"),):
+                glass = k
+        of_primitive = np.append(of_material.take(cs.shapes.material_idx), np.int8(-1))
+        return cls(of_primitive, int(of_primitive.max()) + 1, glass)
+
+    def order(self, primitive_idx) -> tuple[np.ndarray, list[tuple[int, int]]]:
+        """The rows that hit something, kernel 0's first, then kernel 1's,
+        ..., then those of no kernel, each group in batch order; and each
+        kernel's run ``(start, stop)`` in that order."""
+        group = self.of_primitive.take(primitive_idx)
+        rows = [true_rows(group == k) for k in range(self.count)]
+        stops = list(itertools.accumulate(r.size for r in rows))  # a few Python ints: no NumPy call
+        return (np.concatenate(rows) if rows else true_rows(group >= 0)), list(zip([0] + stops[:-1], stops))
+
+
 def begin_trace(cs: CompiledScene, job: Job, stats: TraceStats | None):
     """What every integrator starts from: the camera frame, a zeroed
     per-sample radiance buffer and the counters (the job's samples counted)."""
@@ -225,6 +300,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     """
     scene, frame, radiance, stats = begin_trace(cs, job, stats)
     kernels = kernels_present(cs.materials)
+    groups = KernelGroups.build(cs, kernels)
     settings = scene.render
     sampler = render_sampler(cs, key)
     emitters = cs.emitters if settings.light_sampling and cs.emitters is not None and len(cs.emitters) else None
@@ -247,7 +323,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             live, hits, in_medium, point = travel_media(cs, sampler, live, hits, first)
             if len(in_medium):
                 in_medium, shadows = scatter_in_media(cs, sampler, in_medium, point, emitters)
-        live, surface, gone = escaped(cs, live, hits, radiance)
+        live, surface, gone, runs = escaped(cs, live, hits, radiance, groups)
         if len(live):
             drawn = draw_together(cs, sampler, live, emitters, roulette)
             kind = cs.materials.kind.take(surface.material_idx)  # each hit's material kind, taken once a bounce
@@ -259,9 +335,10 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 shadows = ShadowBatch.concat(shadows, sample_lights(cs, sampler, emitters, live, surface, diffuse,
                                                                     absorbed, settings.depth, albedo, drawn))
         if len(live):
-            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn, kind)
+            direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn, kind, runs)
             if diffuse is not None:
-                record_sampling(cs, live, surface, diffuse, direction, kind)
+                record_sampling(cs, live, surface, diffuse, direction, kind,
+                                None if runs is None or groups.glass is None else runs[groups.glass])
             if roulette is not None:
                 absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, drawn)
             if cs.media is not None:
@@ -295,7 +372,7 @@ def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch
     free = capacity - len(live)
     if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
         stop = min(job.size, next_slot + free)
-        live = PathBatch.concat(live, camera_paths(cs, frame, sampler, job, next_slot, stop))
+        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live)
         next_slot = stop
     return live, next_slot
 
@@ -318,10 +395,11 @@ def intersect_with_shadows(cs: CompiledScene, live: PathBatch, shadows: ShadowBa
     return Hits(hits.t[:n], hits.primitive_idx[:n])
 
 
-def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
+def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGroups | None = None):
     """Stage 3: paths that hit nothing add ``throughput * background`` and
-    end.  Returns the paths, what they hit, and which of them escaped (None:
-    none are left in the batch).
+    end.  Returns the paths, what they hit, which of them escaped (None:
+    none are left in the batch), and the runs of rows of each scatter kernel
+    (None: the rows are not grouped).
 
     Where few escaped (at most ``ESCAPED_KEPT_FRACTION``: cornell_spheres'
     open front loses ~1 % a bounce) they stay in the batch until stage 9
@@ -332,12 +410,16 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
     absorbed rows or works row by row and drops them at the end (no random
     number depends on a row's position), so the image is the same, and one
     compaction of every field is saved per bounce.  Otherwise only the hit
-    rows go on.
+    rows go on, grouped by the scatter kernel that serves them (given
+    ``groups``): stage 7 then runs each kernel on a slice of the batch (no
+    gathers or scatters, and no kernel over rows another one's results
+    overwrite), and stage 7b finds the glass rows there.  No stage reads a
+    path's position in the batch (see :func:`advance`).
     """
     hit = hits.primitive_idx >= 0
     esc_idx = true_rows(~hit)
     t, primitive_idx = hits.t, hits.primitive_idx
-    gone = None
+    gone = runs = None
     if esc_idx.size:
         scatter_add(radiance, live.slot.take(esc_idx),
                     gather(live.throughput, esc_idx) * cs.scene.background.radiance(gather(live.direction, esc_idx)))
@@ -346,10 +428,13 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
             t, primitive_idx = t.copy(), primitive_idx.copy()
             t[esc_idx], primitive_idx[esc_idx] = 0, 0
         else:
-            hit_idx = true_rows(hit)
+            if groups is None:
+                hit_idx = true_rows(hit)
+            else:
+                hit_idx, runs = groups.order(primitive_idx)
             live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
     if len(live) == 0:
-        return live, None, None
+        return live, None, None, None
     surface = cs.shapes.surface(live.origin, live.direction, t, primitive_idx, uv=cs.materials.needs_uv, time=live.time)
     if gone is not None:  # the stand-ins' normals: their own rays reversed (surface's arrays are its own)
         facing = -gather(live.direction, esc_idx)
@@ -359,7 +444,7 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance):
         surface.front_face[esc_idx] = True
         if surface.uv is not None:
             surface.uv[:, esc_idx] = 0
-    return live, surface, gone
+    return live, surface, gone, runs
 
 
 @dataclass(slots=True)
@@ -554,12 +639,13 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
 
 
 def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None,
-                 drawn: DrawnUniforms | None = None, kind=None):
+                 drawn: DrawnUniforms | None = None, kind=None, runs=None):
     """Stage 7: hits are routed by material kind, one kernel per kind present;
     throughput is multiplied by the attenuation (``albedo (3, N)``: the hits'
     textured albedo, if any; ``drawn``: the uniforms, and ``kind``, the
-    hits' material kinds, if taken already).  Returns the new directions and
-    the ``absorbed`` mask."""
+    hits' material kinds, if taken already; ``runs``: each kernel's rows,
+    ``(start, stop)``, if stage 3 grouped them).  Returns the new directions
+    and the ``absorbed`` mask."""
     table = cs.materials
     material, normal, front_face = surface.material_idx, surface.normal, surface.front_face
     if kind is None:
@@ -571,6 +657,19 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         att, direction, dead = kernels[0][1](table, material, live.direction, normal, front_face, u, albedo)
         live.throughput *= att
         return direction, dead | absorbed
+    if runs is not None:
+        # each kernel on its slice of the batch: no gathers or scatters (rows
+        # of no kernel, emitters, are absorbed and keep theirs)
+        direction = live.direction  # overwritten run by run
+        for (start, stop), (_, kernel) in zip(runs, kernels):
+            if stop > start:
+                run = slice(start, stop)
+                att, d, dead = kernel(table, material[run], direction[:, run], normal[:, run], front_face[run],
+                                      u[:, run], None if albedo is None else albedo[:, run])
+                live.throughput[:, run] *= att
+                direction[:, run] = d
+                absorbed[run] |= dead
+        return direction, absorbed
     routes = [(true_rows(np.isin(table.kind, codes).take(material) if len(codes) > 1 else kind == codes[0]), kernel)
               for codes, kernel in kernels]
     routes = [(sel, kernel) for sel, kernel in routes if sel.size]
@@ -601,13 +700,15 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
     return direction, absorbed
 
 
-def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direction, kind=None) -> None:
+def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direction, kind=None,
+                    glass_run: tuple[int, int] | None = None) -> None:
     """After scattering: what the next vertex's MIS weight and roulette need.
 
     Lambertian rows sampled ``cos / pi`` (taken about the same shading
     normal the kernel used); every other kind is a delta, whose ``bsdf_pdf``
     is never read.  Refraction multiplies ``eta^2`` by the squared relative
-    index crossed (``kind``: the hits' material kinds, if taken already).
+    index crossed (``kind``: the hits' material kinds, if taken already;
+    ``glass_run``: the glass rows' ``(start, stop)``, if stage 3 grouped them).
     """
     table = cs.materials
     if kind is None:
@@ -620,6 +721,16 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
     # where zeroing the others cost ~50 us of a 32 Ki path bounce (its
     # random mask mispredicts), ~0.5 % of the bounce.
     live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
+    if glass_run is not None:
+        # a transmitted direction leaves on the far side of the (ray-facing) normal
+        start, stop = glass_run
+        through = true_rows(dot(surface.normal[:, start:stop], direction[:, start:stop]) < 0.0)
+        through += start
+        if through.size:
+            index = table.refraction_index.take(surface.material_idx.take(through)).astype(np.float64)
+            eta = np.where(surface.front_face.take(through), index, 1.0 / index)  # n_transmitted / n_incident
+            live.eta_scale[through] *= eta * eta
+        return
     glass = true_rows(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal

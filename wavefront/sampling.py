@@ -705,7 +705,8 @@ def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
     ndarray of shape (3, N)
     """
     out = np.empty((3, u1.shape[0]), dtype=np.result_type(u1, u2))
-    z = 1.0 - 2.0 * u1
+    z = np.multiply(u1, 2.0)  # 1 - 2 u1 in one new array (products commute exactly)
+    np.subtract(1.0, z, out=z)
     out[2] = z
     r = np.multiply(z, z, out=z)
     np.subtract(1.0, r, out=r)

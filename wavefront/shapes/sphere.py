@@ -208,7 +208,8 @@ class SphereSet(ShapeKind):
     def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = t * direction
         point += origin  # origin + t direction (addition commutes exactly)
-        outward = point - self.center_at(idx, time)
+        center = self.center_at(idx, time)  # a new array: the outward normal is formed in it
+        outward = np.subtract(point, center, out=center)
         outward *= self.inverse_radius.take(idx)
         return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
 
