@@ -158,6 +158,8 @@ SUBTREE_ROUNDS = 3
 # descendant_boxes): on the 1M terrain 2 levels were ~7 % faster than 1, 3 no faster
 # than 2, 4 ~25 % slower (16 boxes a pair, of which ~2 survive).
 STEP_LEVELS = 2
+# ... and small trees (octant tables, see _build_traversal_tables' octant_descendants).
+SMALL_STEP_LEVELS = 2
 # Tried on the 1M terrain and not kept (session 5; CPU per path segment, A/B interleaved
 # against the code as it is, ~2050-2200 ns on a loaded machine):
 # - the node-major row tables (leaf slot boxes, descendant boxes) and the top's columns on a
@@ -506,6 +508,26 @@ class BVH:
         self.octant_left = (left + offset).ravel()  # the right child is the next column
         self.octant_is_leaf = np.tile(self.count > 0, self.octants)
         self.top_boxes = {}  # levels stepped -> the first nodes' boxes as columns (see TOP_NODES)
+        # Small trees step SMALL_STEP_LEVELS full levels at a time too, from per-octant tables of
+        # a node's descendants (rows (enter/leave, axis, descendant), column octant * K + node,
+        # as octant_boxes), and octant_below[levels] gives the first descendant's column.
+        self.octant_descendants, self.octant_below = {}, {}
+        for levels in range(2, (1 if self.node_major else SMALL_STEP_LEVELS) + 1):
+            inner = (1 << max(self.first_leaf_depth - levels + 1, 0)) - 1  # nodes `levels` full levels above the first leaves
+            if inner == 0:
+                break
+            width = 1 << levels
+            below = width * np.arange(inner)[None, :] + (width - 1) + np.arange(width)[:, None]  # (width, inner)
+            table = np.zeros((2, 3, width, self.octants, k), dtype=f32)
+            for octant in range(self.octants):
+                for axis in range(3):
+                    enter, leave = (hi, lo) if (octant >> axis) & 1 else (lo, hi)
+                    table[0, axis, :, octant, :inner] = enter[axis, below]
+                    table[1, axis, :, octant, :inner] = leave[axis, below]
+            self.octant_descendants[levels] = table.reshape(6 * width, self.octants * k)
+            first_below = np.zeros((self.octants, k), dtype=np.int64)
+            first_below[:, :inner] = offset + width * np.arange(inner) + (width - 1)
+            self.octant_below[levels] = first_below.ravel()
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (K, 12)
             # Several levels at a step where all are full: node n's descendants `levels`
@@ -837,7 +859,8 @@ class BVH:
                     parts = [p for p in parts if p is not None]
                     return tuple(np.concatenate(x) for x in zip(*parts)) if parts else None
                 pairs = ray.size
-                levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else 1  # one below the first leaves
+                levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else \
+                    max(1, min((last - depth) % SMALL_STEP_LEVELS or SMALL_STEP_LEVELS, last - depth))
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
                 r = rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
@@ -846,8 +869,8 @@ class BVH:
                     t = top.take(node, axis=1, mode="wrap").reshape(shape)
                     t -= r[:3, None]
                 else:
-                    t = gather_minus(self.descendant_boxes[levels] if levels > 1 else self.octant_boxes, node,
-                                     shape, r[:3, None])
+                    t = gather_minus(self.octant_boxes if levels == 1 else self.descendant_boxes[levels]
+                                     if self.node_major else self.octant_descendants[levels], node, shape, r[:3, None])
                 t *= r[3:, None]
                 if self.octants == 1:  # lo/hi planes: the nearer of each pair is where the ray enters
                     near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
@@ -858,7 +881,11 @@ class BVH:
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
                 ray = ray.take(keep, mode="wrap")
-                if levels > 1:
+                if levels > 1 and not self.node_major:
+                    node = self.octant_below[levels].take(node)
+                    node += keep // pairs
+                    depth += levels - 1
+                elif levels > 1:
                     node <<= levels
                     node += keep // pairs + ((1 << levels) - 1)
                     depth += levels - 1  # and one more below
