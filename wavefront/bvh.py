@@ -725,15 +725,22 @@ class BVH:
             else:
                 center = self.leaf_center32.take(node, axis=2, mode="wrap")  # (3, leaf_size, P)
                 reach = self.leaf_reach32.take(node, axis=1, mode="wrap")  # padded radius
-            oc = center - rays.take(ray, axis=1, mode="wrap")[:3, None, :]
+            # in place where the numbers allow: each fresh (leaf_size, P) temporary is another
+            # pass over memory (the same arithmetic with four fewer measured ~10 % faster)
+            oc = center
+            oc -= rays[:3].take(ray, axis=1, mode="wrap")[:, None, :]  # the origins only
             dr = d32.take(ray, axis=1, mode="wrap")[:, None, :]
             h = dr[0] * oc[0]
             h += dr[1] * oc[1]
             h += dr[2] * oc[2]
             oc -= h * dr  # now l, the centre's offset from the line
             oc *= oc
-            candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
-            candidate &= h - reach <= to_beat.take(ray)
+            distance2 = oc[0] + oc[1]
+            distance2 += oc[2]
+            candidate = distance2 <= reach * reach
+            candidate &= h + reach >= 0
+            h -= reach
+            candidate &= h <= to_beat.take(ray)
             slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
             pair = slot % ray.size
             prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + slot // ray.size)  # slot j of node k
@@ -844,7 +851,8 @@ class BVH:
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2) if self.octants > 1 else 0
-        node = np.broadcast_to(octant * k, ray_ids.shape).take(ray)  # the root's column in each ray's octant
+        # the root's column in each ray's octant (none if the root was a leaf)
+        node = (octant * k if self.octants > 1 else np.zeros(ray_ids.size, dtype=np.int64))[:ray.size]
 
         def walk(ray, node, depth, stop=None, rays_walking=ray_ids.size):
             """Breadth-first over (ray, interior node) pairs at ``depth``, testing leaves as
