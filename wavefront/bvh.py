@@ -23,7 +23,8 @@ over rays.
 
 The tree is built top-down by median split along the widest axis of the
 primitives' box centres, with at most ``LEAF_SIZE`` primitives per leaf
-(``BIG_LEAF_SIZE`` in trees of more than ``BIG_TREE`` primitives), one
+(``BIG_LEAF_SIZE`` in trees of more than ``BIG_TREE`` primitives,
+``SPHERE_LEAF_SIZE`` in small trees of spheres only), one
 level at a time: each level is a few NumPy calls (a segmented reduction for
 the boxes, one sort keyed by (node, centre along the node's axis)) over all
 primitives still in interior nodes, so a million triangles build in seconds.
@@ -64,9 +65,17 @@ from .vecmath import gather
 LEAF_SIZE = 4
 # Trees over more primitives than BIG_TREE get leaves of BIG_LEAF_SIZE, one
 # level fewer and half the nodes: on the 1M-triangle terrain 8 was 10 % faster
-# than 4 (16 no faster than 8); on W2's 486 spheres 4 stays faster.
+# than 4 (16 no faster than 8); on W2's 486 spheres 4 was faster than 8 (and 2 is
+# faster still since small trees step two levels: SPHERE_LEAF_SIZE).
 BIG_LEAF_SIZE = 8
 BIG_TREE = 1 << 16
+# Spheres-only trees of at most SPHERE_TREE primitives get leaves of SPHERE_LEAF_SIZE: with
+# two-level steps (SMALL_STEP_LEVELS) the extra level costs less than the bounding-sphere
+# pass of the extra slots (W2's 482 tree spheres: intersection ~3 % faster at 2 than at 4,
+# 5 interleaved renders; 3 was ~9 % slower: an incomplete tree).  Capped so that the tree
+# stays far below NODE_MAJOR_NODES (twice the nodes of LEAF_SIZE's).
+SPHERE_LEAF_SIZE = 2
+SPHERE_TREE = 1 << 12
 # Rounds of nearest-leaf-first testing before the remaining leaves are tested
 # together (see _traverse's test_leaves).
 LEAF_ROUNDS = 6
@@ -398,7 +407,10 @@ class BVH:
         inside[self.outsized] = False
         self.outsized_set = primitives.subset(self.outsized)
         self.leaf_rounds_above = LEAF_ROUNDS_ABOVE  # tests set 0 to exercise the rounds on small trees
-        self.leaf_size = BIG_LEAF_SIZE if inside.sum() > BIG_TREE else LEAF_SIZE
+        in_tree = int(inside.sum())
+        spheres = all(kind.name == "sphere" for kind in primitives.kinds)
+        self.leaf_size = BIG_LEAF_SIZE if in_tree > BIG_TREE else \
+            SPHERE_LEAF_SIZE if spheres and in_tree <= SPHERE_TREE else LEAF_SIZE
         self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
