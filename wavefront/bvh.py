@@ -293,6 +293,23 @@ def float32_up(x) -> np.ndarray:
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(np.inf))
 
 
+_FLOAT32_INF_BITS = np.int32(0x7F800000)
+
+
+def float32_up_nonnegative(x) -> np.ndarray:
+    """``float32_up(x)`` for ``x >= +0`` (inf included; a NaN stays a NaN), the same numbers.
+
+    The float32 above a non-negative one is the one whose bits, read as an
+    integer, are one more (0 -> the least subnormal, the largest finite ->
+    inf); inf stays inf and NaN stays NaN.  One integer add instead of
+    ``np.nextafter``: ~5 against ~20-30 us for a batch's 7,000 rays.  Wrong for
+    negative numbers (and -0.0): only for distances.
+    """
+    bits = np.asarray(x).astype(np.float32).view(np.int32)
+    bits += bits != _FLOAT32_INF_BITS
+    return bits.view(np.float32)
+
+
 def float32_down(x) -> np.ndarray:
     """``x`` in float32, rounded towards -inf."""
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
@@ -691,7 +708,9 @@ class BVH:
         shift = np.maximum(near.take(ray_ids), 0.0)
         with np.errstate(over="ignore"):  # 1/d beyond float32 becomes inf, which the slab test handles
             rays = np.concatenate(((o + shift * d).astype(f32), gather(inv, ray_ids).astype(f32)))
-        to_beat = float32_up(nearest - shift)  # the best hit so far in the traversal's frame
+        # the best hit so far in the traversal's frame (nearest >= shift: rays whose root box
+        # entry lies beyond their best hit were left out above)
+        to_beat = float32_up_nonnegative(nearest - shift)
         found = []
 
         k = self.child.size
@@ -819,7 +838,7 @@ class BVH:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
             else:
                 np.minimum.at(nearest, ray, t)
-                to_beat[ray] = float32_up(nearest.take(ray) - shift.take(ray))
+                to_beat[ray] = float32_up_nonnegative(nearest.take(ray) - shift.take(ray))
             found.append((ray_ids.take(ray), t, prim))
 
         # Every kind's exact test keeps only t > T_MIN, so a box the ray leaves before T_MIN
