@@ -315,6 +315,17 @@ def float32_down(x) -> np.ndarray:
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
 
 
+def divmod_by(a: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.divmod(a, n)`` for non-negative integers ``a`` and a positive ``n``: the quotient
+    by floor division (NumPy divides by one scalar with a multiplication and shifts,
+    libdivide) and the remainder as ``a - q n``.  ``%`` and ``np.divmod`` divide element by
+    element: 7,000 indices 18-24 us against 8."""
+    quotient = a // n
+    remainder = quotient * n
+    np.subtract(a, remainder, out=remainder)
+    return quotient, remainder
+
+
 def line_aligned(a: np.ndarray) -> np.ndarray:
     """A C-ordered copy of ``a`` whose first element starts a cache line (CACHE_LINE bytes).
 
@@ -773,8 +784,8 @@ class BVH:
             h -= reach
             candidate &= h <= to_beat.take(ray)
             slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
-            pair = slot % ray.size
-            prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + slot // ray.size)  # slot j of node k
+            j, pair = divmod_by(slot, ray.size)
+            prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + j)  # slot j of node k
             return slot, pair, prim
 
         def test_slots(ray, node):
@@ -804,7 +815,7 @@ class BVH:
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
                 entry, leave = _entry_leave(near, far, floor, to_beat.take(ray), np.minimum)
                 slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
-                j, pair = np.divmod(slot, ray.size)  # one pass for both (a % and a // were two)
+                j, pair = divmod_by(slot, ray.size)
                 row = node.take(pair) * self.leaf_size + j  # slot j of node k at k * leaf_size + j
                 if self.leaf_planes32 is not None:
                     # the plane pass: keep the slots whose ray crosses (to within the margin)
@@ -942,7 +953,8 @@ class BVH:
                 if depth < self.first_leaf_depth:
                     inner = None
                 elif depth == self.first_leaf_depth and self.complete:  # every pair is a leaf's
-                    test_leaves(ray, node % k if self.octants > 1 else node, entry.ravel().take(keep), rays_walking)
+                    test_leaves(ray, divmod_by(node, k)[1] if self.octants > 1 else node, entry.ravel().take(keep),
+                                rays_walking)
                     ray = node = inner = ray[:0]
                 else:
                     is_leaf = self.octant_is_leaf.take(node)
@@ -951,7 +963,7 @@ class BVH:
                     if leaf.size:
                         leaf_node = node.take(leaf)
                         if self.octants > 1:
-                            leaf_node %= k  # column -> node
+                            leaf_node = divmod_by(leaf_node, k)[1]  # column -> node
                         test_leaves(ray.take(leaf), leaf_node, entry.ravel().take(keep.take(leaf)), rays_walking)
                         inner = (~is_leaf).nonzero()[0]
                         ray, node = ray.take(inner), node.take(inner)
