@@ -251,7 +251,31 @@ SMALL_STEP_LEVELS = 2
 #   without it every box behind a ray's origin along its line survives.
 # - the exact rows padded to 16 fields and line-aligned (again, in one process: +34 ns a
 #   ray), the plane table line-aligned (a leaf's 8 rows in one 128-byte pair: +10, noise).
-# Where the time goes there (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
+# Small trees, W2's 482 tree spheres (session 8; CPU of the BVH's intersect calls inside a
+# 240x135 10 spp render on one worker, ~250-265 ms by machine load, interleaved child
+# processes, medians).  Kept: two-level steps (SMALL_STEP_LEVELS), leaves of 2 spheres
+# (SPHERE_LEAF_SIZE), the sphere pass in place, float32_up_nonnegative, divmod_by.  Tried:
+# - SMALL_STEP_LEVELS 3 (0 -> 1 -> 4 -> 7 at leaves of 4): 276 against 260 for 2 (1: 275);
+#   the odd level last (0 -> 2 -> 4 -> 6 -> 7) instead of first: within noise;
+# - TRAVERSAL_BATCH 4096: 289 against 261 (2048 slower still), 12288 or 16384: within noise.
+#   A benchmark that replays recorded rays without the renderer's malloc thresholds
+#   (render.py's mallopt) put 4096 12 % ahead: there every big temporary page-faulted;
+# - LEAF_SIZE 3 (an incomplete tree): 287 against 264; 8: ~10 % slower;
+# - the leaves' octant columns looked up with mode="wrap" instead of one % K: "wrap" walks
+#   each out-of-range index down by subtraction, per element and per row: 305 against 270;
+# - the float32 ray table written in place instead of concatenated: 268 against 266;
+# - small trees' boxes node-major ((K, 24) rows, the transposed copy in the subtraction):
+#   in isolation 83 against 67 us for 6,000 pairs; 16-byte elements (a plane of four
+#   descendants in one np.void, pairs then pair-major): the table gather fell from 54 to 18
+#   us, but the rays' numbers must then be four wide too (gathered or repeated), and take,
+#   subtract and multiply together fell only from 88 to 78 us: at most ~2 %, not done;
+# - the octant by np.packbits over the sign bits: 4x slower than three ors.
+# Where the time goes there now (line profile): the outsized spheres' brute force ~20 %, the
+# walk's steps ~35 % (half of it the gathers of the boxes), the leaves ~25 % (the sphere
+# pass about half, the exact tests a third), each batch's root clip and float32 ray table
+# ~12 %.  (np.minimum.at slows ~10x on arrays whose dtype is not NumPy's own float64
+# instance, as unpickled ones are: a trap for such replays, not met in the renderer.)
+# Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
 # of which 1.1 hit: in leaf order a ray over the rough surface often meets a farther
