@@ -266,9 +266,9 @@ SMALL_STEP_LEVELS = 2
 # - the float32 ray table written in place instead of concatenated: 268 against 266;
 # - small trees' boxes node-major ((K, 24) rows, the transposed copy in the subtraction):
 #   in isolation 83 against 67 us for 6,000 pairs; 16-byte elements (a plane of four
-#   descendants in one np.void, pairs then pair-major): the table gather fell from 54 to 18
-#   us, but the rays' numbers must then be four wide too (gathered or repeated), and take,
-#   subtract and multiply together fell only from 88 to 78 us: at most ~2 %, not done;
+#   descendants in one np.void, pairs then pair-major, the rays' numbers and bound gathered
+#   four wide from a repeated table): the box gather fell from 54 to 18 us, but a whole
+#   two-level step of 6,800 pairs in isolation took 158 against 156 us;
 # - the octant by np.packbits over the sign bits: 4x slower than three ors.
 # Where the time goes there now (line profile): the outsized spheres' brute force ~20 %, the
 # walk's steps ~35 % (half of it the gathers of the boxes), the leaves ~25 % (the sphere
