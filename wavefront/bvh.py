@@ -260,7 +260,9 @@ SMALL_STEP_LEVELS = 2
 # - TRAVERSAL_BATCH 4096: 289 against 261 (2048 slower still), 12288 or 16384: within noise.
 #   A benchmark that replays recorded rays without the renderer's malloc thresholds
 #   (render.py's mallopt) put 4096 12 % ahead: there every big temporary page-faulted;
-# - LEAF_SIZE 3 (an incomplete tree): 287 against 264; 8: ~10 % slower;
+# - LEAF_SIZE 3 (an incomplete tree): 287 against 264; 8: ~10 % slower; SPHERE_LEAF_SIZE 1:
+#   270 against 244 (a single sphere's box culls less than its bounding sphere);
+# - LEAF_ROUNDS_ABOVE 1: 260 against 247; 4 or 1000 (no rounds): within noise (243-249);
 # - the leaves' octant columns looked up with mode="wrap" instead of one % K: "wrap" walks
 #   each out-of-range index down by subtraction, per element and per row: 305 against 270;
 # - the float32 ray table written in place instead of concatenated: 268 against 266;
@@ -268,7 +270,8 @@ SMALL_STEP_LEVELS = 2
 #   in isolation 83 against 67 us for 6,000 pairs; 16-byte elements (a plane of four
 #   descendants in one np.void, pairs then pair-major, the rays' numbers and bound gathered
 #   four wide from a repeated table): the box gather fell from 54 to 18 us, but a whole
-#   two-level step of 6,800 pairs in isolation took 158 against 156 us;
+#   two-level step of 6,800 pairs in isolation took 158 against 156 us (with the pairs'
+#   rays in random order, as the walk leaves them, 169 against 162);
 # - the octant by np.packbits over the sign bits: 4x slower than three ors.
 # Where the time goes there now (line profile): the outsized spheres' brute force ~20 %, the
 # walk's steps ~35 % (half of it the gathers of the boxes), the leaves ~25 % (the sphere
