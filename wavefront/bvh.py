@@ -23,7 +23,8 @@ over rays.
 
 The tree is built top-down by median split along the widest axis of the
 primitives' box centres, with at most ``LEAF_SIZE`` primitives per leaf
-(``BIG_LEAF_SIZE`` in trees of more than ``BIG_TREE`` primitives), one
+(``BIG_LEAF_SIZE`` in trees of more than ``BIG_TREE`` primitives,
+``SPHERE_LEAF_SIZE`` in small trees of spheres only), one
 level at a time: each level is a few NumPy calls (a segmented reduction for
 the boxes, one sort keyed by (node, centre along the node's axis)) over all
 primitives still in interior nodes, so a million triangles build in seconds.
@@ -64,9 +65,17 @@ from .vecmath import gather
 LEAF_SIZE = 4
 # Trees over more primitives than BIG_TREE get leaves of BIG_LEAF_SIZE, one
 # level fewer and half the nodes: on the 1M-triangle terrain 8 was 10 % faster
-# than 4 (16 no faster than 8); on W2's 486 spheres 4 stays faster.
+# than 4 (16 no faster than 8); on W2's 486 spheres 4 was faster than 8 (and 2 is
+# faster still since small trees step two levels: SPHERE_LEAF_SIZE).
 BIG_LEAF_SIZE = 8
 BIG_TREE = 1 << 16
+# Spheres-only trees of at most SPHERE_TREE primitives get leaves of SPHERE_LEAF_SIZE: with
+# two-level steps (SMALL_STEP_LEVELS) the extra level costs less than the bounding-sphere
+# pass of the extra slots (W2's 482 tree spheres: intersection ~3 % faster at 2 than at 4,
+# 5 interleaved renders; 3 was ~9 % slower: an incomplete tree).  Capped so that the tree
+# stays far below NODE_MAJOR_NODES (twice the nodes of LEAF_SIZE's).
+SPHERE_LEAF_SIZE = 2
+SPHERE_TREE = 1 << 12
 # Rounds of nearest-leaf-first testing before the remaining leaves are tested
 # together (see _traverse's test_leaves).
 LEAF_ROUNDS = 6
@@ -158,6 +167,8 @@ SUBTREE_ROUNDS = 3
 # descendant_boxes): on the 1M terrain 2 levels were ~7 % faster than 1, 3 no faster
 # than 2, 4 ~25 % slower (16 boxes a pair, of which ~2 survive).
 STEP_LEVELS = 2
+# ... and small trees (octant tables, see _build_traversal_tables' octant_descendants).
+SMALL_STEP_LEVELS = 2
 # Tried on the 1M terrain and not kept (session 5; CPU per path segment, A/B interleaved
 # against the code as it is, ~2050-2200 ns on a loaded machine):
 # - the node-major row tables (leaf slot boxes, descendant boxes) and the top's columns on a
@@ -240,7 +251,34 @@ STEP_LEVELS = 2
 #   without it every box behind a ray's origin along its line survives.
 # - the exact rows padded to 16 fields and line-aligned (again, in one process: +34 ns a
 #   ray), the plane table line-aligned (a leaf's 8 rows in one 128-byte pair: +10, noise).
-# Where the time goes there (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
+# Small trees, W2's 482 tree spheres (session 8; CPU of the BVH's intersect calls inside a
+# 240x135 10 spp render on one worker, ~250-265 ms by machine load, interleaved child
+# processes, medians).  Kept: two-level steps (SMALL_STEP_LEVELS), leaves of 2 spheres
+# (SPHERE_LEAF_SIZE), the sphere pass in place, float32_up_nonnegative, divmod_by.  Tried:
+# - SMALL_STEP_LEVELS 3 (0 -> 1 -> 4 -> 7 at leaves of 4): 276 against 260 for 2 (1: 275);
+#   the odd level last (0 -> 2 -> 4 -> 6 -> 7) instead of first: within noise;
+# - TRAVERSAL_BATCH 4096: 289 against 261 (2048 slower still), 12288 or 16384: within noise.
+#   A benchmark that replays recorded rays without the renderer's malloc thresholds
+#   (render.py's mallopt) put 4096 12 % ahead: there every big temporary page-faulted;
+# - LEAF_SIZE 3 (an incomplete tree): 287 against 264; 8: ~10 % slower; SPHERE_LEAF_SIZE 1:
+#   270 against 244 (a single sphere's box culls less than its bounding sphere);
+# - LEAF_ROUNDS_ABOVE 1: 260 against 247; 4 or 1000 (no rounds): within noise (243-249);
+# - the leaves' octant columns looked up with mode="wrap" instead of one % K: "wrap" walks
+#   each out-of-range index down by subtraction, per element and per row: 305 against 270;
+# - the float32 ray table written in place instead of concatenated: 268 against 266;
+# - small trees' boxes node-major ((K, 24) rows, the transposed copy in the subtraction):
+#   in isolation 83 against 67 us for 6,000 pairs; 16-byte elements (a plane of four
+#   descendants in one np.void, pairs then pair-major, the rays' numbers and bound gathered
+#   four wide from a repeated table): the box gather fell from 54 to 18 us, but a whole
+#   two-level step of 6,800 pairs in isolation took 158 against 156 us (with the pairs'
+#   rays in random order, as the walk leaves them, 169 against 162);
+# - the octant by np.packbits over the sign bits: 4x slower than three ors.
+# Where the time goes there now (line profile): the outsized spheres' brute force ~20 %, the
+# walk's steps ~35 % (half of it the gathers of the boxes), the leaves ~25 % (the sphere
+# pass about half, the exact tests a third), each batch's root clip and float32 ray table
+# ~12 %.  (np.minimum.at slows ~10x on arrays whose dtype is not NumPy's own float64
+# instance, as unpickled ones are: a trap for such replays, not met in the renderer.)
+# Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
 # of which 1.1 hit: in leaf order a ray over the rough surface often meets a farther
@@ -282,9 +320,37 @@ def float32_up(x) -> np.ndarray:
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(np.inf))
 
 
+_FLOAT32_INF_BITS = np.int32(0x7F800000)
+
+
+def float32_up_nonnegative(x) -> np.ndarray:
+    """``float32_up(x)`` for ``x >= +0`` (inf included; a NaN stays a NaN), the same numbers.
+
+    The float32 above a non-negative one is the one whose bits, read as an
+    integer, are one more (0 -> the least subnormal, the largest finite ->
+    inf); inf stays inf and NaN stays NaN.  One integer add instead of
+    ``np.nextafter``: ~5 against ~20-30 us for a batch's 7,000 rays.  Wrong for
+    negative numbers (and -0.0): only for distances.
+    """
+    bits = np.asarray(x).astype(np.float32).view(np.int32)
+    bits += bits != _FLOAT32_INF_BITS
+    return bits.view(np.float32)
+
+
 def float32_down(x) -> np.ndarray:
     """``x`` in float32, rounded towards -inf."""
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
+
+
+def divmod_by(a: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.divmod(a, n)`` for non-negative integers ``a`` and a positive ``n``: the quotient
+    by floor division (NumPy divides by one scalar with a multiplication and shifts,
+    libdivide) and the remainder as ``a - q n``.  ``%`` and ``np.divmod`` divide element by
+    element: 7,000 indices 18-24 us against 8."""
+    quotient = a // n
+    remainder = quotient * n
+    np.subtract(a, remainder, out=remainder)
+    return quotient, remainder
 
 
 def line_aligned(a: np.ndarray) -> np.ndarray:
@@ -396,7 +462,10 @@ class BVH:
         inside[self.outsized] = False
         self.outsized_set = primitives.subset(self.outsized)
         self.leaf_rounds_above = LEAF_ROUNDS_ABOVE  # tests set 0 to exercise the rounds on small trees
-        self.leaf_size = BIG_LEAF_SIZE if inside.sum() > BIG_TREE else LEAF_SIZE
+        in_tree = int(inside.sum())
+        spheres = all(kind.name == "sphere" for kind in primitives.kinds)
+        self.leaf_size = BIG_LEAF_SIZE if in_tree > BIG_TREE else \
+            SPHERE_LEAF_SIZE if spheres and in_tree <= SPHERE_TREE else LEAF_SIZE
         self._build(np.flatnonzero(inside))
 
     def __len__(self) -> int:
@@ -506,6 +575,26 @@ class BVH:
         self.octant_left = (left + offset).ravel()  # the right child is the next column
         self.octant_is_leaf = np.tile(self.count > 0, self.octants)
         self.top_boxes = {}  # levels stepped -> the first nodes' boxes as columns (see TOP_NODES)
+        # Small trees step SMALL_STEP_LEVELS full levels at a time too, from per-octant tables of
+        # a node's descendants (rows (enter/leave, axis, descendant), column octant * K + node,
+        # as octant_boxes), and octant_below[levels] gives the first descendant's column.
+        self.octant_descendants, self.octant_below = {}, {}
+        for levels in range(2, (1 if self.node_major else SMALL_STEP_LEVELS) + 1):
+            inner = (1 << max(self.first_leaf_depth - levels + 1, 0)) - 1  # nodes `levels` full levels above the first leaves
+            if inner == 0:
+                break
+            width = 1 << levels
+            below = width * np.arange(inner)[None, :] + (width - 1) + np.arange(width)[:, None]  # (width, inner)
+            table = np.zeros((2, 3, width, self.octants, k), dtype=f32)
+            for octant in range(self.octants):
+                for axis in range(3):
+                    enter, leave = (hi, lo) if (octant >> axis) & 1 else (lo, hi)
+                    table[0, axis, :, octant, :inner] = enter[axis, below]
+                    table[1, axis, :, octant, :inner] = leave[axis, below]
+            self.octant_descendants[levels] = table.reshape(6 * width, self.octants * k)
+            first_below = np.zeros((self.octants, k), dtype=np.int64)
+            first_below[:, :inner] = offset + width * np.arange(inner) + (width - 1)
+            self.octant_below[levels] = first_below.ravel()
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (K, 12)
             # Several levels at a step where all are full: node n's descendants `levels`
@@ -657,7 +746,9 @@ class BVH:
         shift = np.maximum(near.take(ray_ids), 0.0)
         with np.errstate(over="ignore"):  # 1/d beyond float32 becomes inf, which the slab test handles
             rays = np.concatenate(((o + shift * d).astype(f32), gather(inv, ray_ids).astype(f32)))
-        to_beat = float32_up(nearest - shift)  # the best hit so far in the traversal's frame
+        # the best hit so far in the traversal's frame (nearest >= shift: rays whose root box
+        # entry lies beyond their best hit were left out above)
+        to_beat = float32_up_nonnegative(nearest - shift)
         found = []
 
         k = self.child.size
@@ -703,18 +794,25 @@ class BVH:
             else:
                 center = self.leaf_center32.take(node, axis=2, mode="wrap")  # (3, leaf_size, P)
                 reach = self.leaf_reach32.take(node, axis=1, mode="wrap")  # padded radius
-            oc = center - rays.take(ray, axis=1, mode="wrap")[:3, None, :]
+            # in place where the numbers allow: each fresh (leaf_size, P) temporary is another
+            # pass over memory (the same arithmetic with four fewer measured ~10 % faster)
+            oc = center
+            oc -= rays[:3].take(ray, axis=1, mode="wrap")[:, None, :]  # the origins only
             dr = d32.take(ray, axis=1, mode="wrap")[:, None, :]
             h = dr[0] * oc[0]
             h += dr[1] * oc[1]
             h += dr[2] * oc[2]
             oc -= h * dr  # now l, the centre's offset from the line
             oc *= oc
-            candidate = (oc[0] + oc[1] + oc[2] <= reach * reach) & (h + reach >= 0)
-            candidate &= h - reach <= to_beat.take(ray)
+            distance2 = oc[0] + oc[1]
+            distance2 += oc[2]
+            candidate = distance2 <= reach * reach
+            candidate &= h + reach >= 0
+            h -= reach
+            candidate &= h <= to_beat.take(ray)
             slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
-            pair = slot % ray.size
-            prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + slot // ray.size)  # slot j of node k
+            j, pair = divmod_by(slot, ray.size)
+            prim = self.leaf_primitive.take(node.take(pair) * self.leaf_size + j)  # slot j of node k
             return slot, pair, prim
 
         def test_slots(ray, node):
@@ -744,7 +842,7 @@ class BVH:
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
                 entry, leave = _entry_leave(near, far, floor, to_beat.take(ray), np.minimum)
                 slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
-                j, pair = np.divmod(slot, ray.size)  # one pass for both (a % and a // were two)
+                j, pair = divmod_by(slot, ray.size)
                 row = node.take(pair) * self.leaf_size + j  # slot j of node k at k * leaf_size + j
                 if self.leaf_planes32 is not None:
                     # the plane pass: keep the slots whose ray crosses (to within the margin)
@@ -778,7 +876,7 @@ class BVH:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
             else:
                 np.minimum.at(nearest, ray, t)
-                to_beat[ray] = float32_up(nearest.take(ray) - shift.take(ray))
+                to_beat[ray] = float32_up_nonnegative(nearest.take(ray) - shift.take(ray))
             found.append((ray_ids.take(ray), t, prim))
 
         # Every kind's exact test keeps only t > T_MIN, so a box the ray leaves before T_MIN
@@ -822,7 +920,8 @@ class BVH:
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
         octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2) if self.octants > 1 else 0
-        node = np.broadcast_to(octant * k, ray_ids.shape).take(ray)  # the root's column in each ray's octant
+        # the root's column in each ray's octant (none if the root was a leaf)
+        node = (octant * k if self.octants > 1 else np.zeros(ray_ids.size, dtype=np.int64))[:ray.size]
 
         def walk(ray, node, depth, stop=None, rays_walking=ray_ids.size):
             """Breadth-first over (ray, interior node) pairs at ``depth``, testing leaves as
@@ -837,7 +936,8 @@ class BVH:
                     parts = [p for p in parts if p is not None]
                     return tuple(np.concatenate(x) for x in zip(*parts)) if parts else None
                 pairs = ray.size
-                levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else 1  # one below the first leaves
+                levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else \
+                    max(1, min((last - depth) % SMALL_STEP_LEVELS or SMALL_STEP_LEVELS, last - depth))
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
                 r = rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
@@ -846,8 +946,8 @@ class BVH:
                     t = top.take(node, axis=1, mode="wrap").reshape(shape)
                     t -= r[:3, None]
                 else:
-                    t = gather_minus(self.descendant_boxes[levels] if levels > 1 else self.octant_boxes, node,
-                                     shape, r[:3, None])
+                    t = gather_minus(self.octant_boxes if levels == 1 else self.descendant_boxes[levels]
+                                     if self.node_major else self.octant_descendants[levels], node, shape, r[:3, None])
                 t *= r[3:, None]
                 if self.octants == 1:  # lo/hi planes: the nearer of each pair is where the ray enters
                     near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
@@ -858,7 +958,11 @@ class BVH:
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
                 ray = ray.take(keep, mode="wrap")
-                if levels > 1:
+                if levels > 1 and not self.node_major:
+                    node = self.octant_below[levels].take(node)
+                    node += keep // pairs
+                    depth += levels - 1
+                elif levels > 1:
                     node <<= levels
                     node += keep // pairs + ((1 << levels) - 1)
                     depth += levels - 1  # and one more below
@@ -876,7 +980,8 @@ class BVH:
                 if depth < self.first_leaf_depth:
                     inner = None
                 elif depth == self.first_leaf_depth and self.complete:  # every pair is a leaf's
-                    test_leaves(ray, node % k if self.octants > 1 else node, entry.ravel().take(keep), rays_walking)
+                    test_leaves(ray, divmod_by(node, k)[1] if self.octants > 1 else node, entry.ravel().take(keep),
+                                rays_walking)
                     ray = node = inner = ray[:0]
                 else:
                     is_leaf = self.octant_is_leaf.take(node)
@@ -885,7 +990,7 @@ class BVH:
                     if leaf.size:
                         leaf_node = node.take(leaf)
                         if self.octants > 1:
-                            leaf_node %= k  # column -> node
+                            leaf_node = divmod_by(leaf_node, k)[1]  # column -> node
                         test_leaves(ray.take(leaf), leaf_node, entry.ravel().take(keep.take(leaf)), rays_walking)
                         inner = (~is_leaf).nonzero()[0]
                         ray, node = ray.take(inner), node.take(inner)
