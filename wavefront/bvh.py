@@ -169,6 +169,11 @@ SUBTREE_ROUNDS = 3
 STEP_LEVELS = 2
 # ... and small trees (octant tables, see _build_traversal_tables' octant_descendants).
 SMALL_STEP_LEVELS = 2
+# "The 1M terrain" in these notes, through session 7, is the rough terrain (per-vertex noise:
+# scenes/make_mesh_models.py terrain(rough=True), the benchmarks' "rough" rows), whose spikes
+# are smaller than a pixel at 1M triangles; from session 8 the benchmarks' floor pair is one
+# smooth surface cut into 1k and 1M triangles (~0.93 against ~0.53 us a segment, where the rough
+# 1M takes ~1.73).  Tuning done on the rough terrain is its worst case, kept as a stress row.
 # Tried on the 1M terrain and not kept (session 5; CPU per path segment, A/B interleaved
 # against the code as it is, ~2050-2200 ns on a loaded machine):
 # - the node-major row tables (leaf slot boxes, descendant boxes) and the top's columns on a
