@@ -67,15 +67,42 @@ def test_fingerprint_leaves_out_the_name_so_a_renamed_scene_file_resumes(tmp_pat
     np.testing.assert_array_equal(np.load(tmp_path / "again.npy"), np.load(out))
 
 
+def test_a_scene_with_mesh_and_texture_files_resumes_from_another_directory(tmp_path):
+    """The fingerprint hashes the meshes' and pictures' content, not the paths they were
+    read from: ``wavefront render da/scene.yaml`` then ``cd da && wavefront render
+    scene.yaml --resume ...`` was refused as a different scene (a reviewer's case)."""
+    import shutil
+
+    folder = tmp_path / "da"
+    shutil.copytree(SCENES / "models", folder / "models")
+    shutil.copy(SCENES / "mesh.yaml", folder / "scene.yaml")
+    shutil.copy(SCENES / "earthmap.png", folder / "earthmap.png")
+    text = (folder / "scene.yaml").read_text().replace("clay:   {type: lambertian, albedo: [0.8, 0.3, 0.2]}",
+                                                       "clay:   {type: lambertian, albedo: {type: image, file: earthmap.png}}")
+    assert "earthmap.png" in text
+    (folder / "scene.yaml").write_text(text)
+    args = ("--width", 8, "--height", 4, "--spp", 1, "--max-depth", 2)
+    r = run("render", "da/scene.yaml", "-o", "first.npy", "--checkpoint", "ck.npz", *args, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = run("render", "scene.yaml", "-o", "../again.npy", "--resume", "../ck.npz", *args, cwd=folder)
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_array_equal(np.load(tmp_path / "again.npy"), np.load(tmp_path / "first.npy"))
+
+
 def test_round_trip_and_refusals(tmp_path):
-    scene = tiny_scene()
+    from wavefront.units import UnitPlan
+
+    scene = tiny_scene(render=RenderSettings(samples_per_pixel=100))
     film = Film(4, 3)
     film.sum[:] = np.arange(36).reshape(3, 12)
-    film.count[:] = 7
+    film.count[:] = 16  # what the first 5 units (passes of 1, 1, 2, 4, 8 samples) give each pixel...
+    film.count[3] = 13  # ... less 3 non-finite samples dropped
+    film.dropped = 3
+    assert UnitPlan(4, 3, 100).samples_before(5) == 16 * 12
     ck = tmp_path / "ck.npz"
     save_checkpoint(str(ck), scene, film, 5)
     loaded, done = load_checkpoint(str(ck), scene, units_total=10)
-    assert done == 5 and (loaded.sum == film.sum).all() and (loaded.count == 7).all()
+    assert done == 5 and (loaded.sum == film.sum).all() and (loaded.count == film.count).all() and loaded.dropped == 3
     with pytest.raises(CheckpointError, match="different scene"):
         load_checkpoint(str(ck), scene.with_overrides(seed=3), units_total=10)
     with pytest.raises(CheckpointError, match="out of range"):
@@ -84,7 +111,7 @@ def test_round_trip_and_refusals(tmp_path):
 
 def hostile_checkpoint(path, scene, **arrays):
     """A zip of .npy members like a checkpoint, with the given arrays instead."""
-    members = {"fingerprint": np.array(scene_fingerprint(scene)), "units_done": np.int64(0),
+    members = {"fingerprint": np.array(scene_fingerprint(scene)), "units_done": np.int64(0), "dropped": np.int64(0),
                "sum": np.zeros((3, 12)), "count": np.zeros(12, dtype=np.uint32)}
     members.update(arrays)
     with zipfile.ZipFile(path, "w") as z:
@@ -131,9 +158,19 @@ def test_checkpoints_whose_counts_contradict_their_units_done_are_refused(tmp_pa
             hostile_checkpoint(ck, scene, units_done=np.int64(done), count=more, sum=np.ones((3, 12)))
             with pytest.raises(CheckpointError, match=f"more samples than the {done} units"):
                 load_checkpoint(str(ck), scene, units_total=len(plan))
-    hostile_checkpoint(ck, scene, units_done=np.int64(1), count=np.zeros(12, dtype=np.uint32), sum=np.ones((3, 12)))
+    hostile_checkpoint(ck, scene, units_done=np.int64(1), count=np.zeros(12, dtype=np.uint32), sum=np.ones((3, 12)),
+                       dropped=np.int64(plan.samples_before(1)))
     with pytest.raises(CheckpointError, match="without samples has a non-zero sum"):
         load_checkpoint(str(ck), scene, units_total=len(plan))
+    # fewer samples than the plan gives, with full sums (an image 4x too bright), unless the
+    # checkpoint's dropped samples account for the difference exactly
+    done = len(plan)
+    hostile_checkpoint(ck, scene, units_done=np.int64(done), count=np.ones(12, dtype=np.uint32), sum=np.ones((3, 12)))
+    with pytest.raises(CheckpointError, match="do not add up"):
+        load_checkpoint(str(ck), scene, units_total=len(plan))
+    hostile_checkpoint(ck, scene, units_done=np.int64(done), count=np.ones(12, dtype=np.uint32), sum=np.ones((3, 12)),
+                       dropped=np.int64(plan.samples_before(done) - 12))
+    assert load_checkpoint(str(ck), scene, units_total=len(plan))[0].dropped == plan.samples_before(done) - 12
 
 
 def test_a_resumed_film_without_samples_says_so(tmp_path):
@@ -147,6 +184,7 @@ def test_a_resumed_film_without_samples_says_so(tmp_path):
         members = {name: z[name] for name in z.files}
     members["count"][:] = 0
     members["sum"][:] = 0
+    members["dropped"] = np.int64(32)  # every sample dropped: the counts still add up
     np.savez(ck, **members)
     r = run("render", scene_file, "-o", out, "--resume", ck, *args)
     assert r.returncode == 0 and "32 pixels without samples" in r.stderr, r.stderr

@@ -24,16 +24,19 @@ from .validation import first_line
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 # Bump when the unit plan or the film's meaning changes: a checkpoint made by
 # another plan would resume into the wrong samples.
-CHECKPOINT_VERSION = 2
+CHECKPOINT_VERSION = 3  # 3: the dropped samples are saved, and the name left out
 FILM_BYTES_PER_PIXEL = 3 * 8 + 4  # float64 RGB sums + uint32 count
 
 
 class Film:
     """Per-pixel sums and sample counts, filled in unit order."""
 
-    def __init__(self, width: int, height: int, sums: np.ndarray | None = None, count: np.ndarray | None = None):
-        """An empty film, or one holding ``sums (3, W*H)`` float64 and ``count (W*H,)`` uint32 (not copied)."""
+    def __init__(self, width: int, height: int, sums: np.ndarray | None = None, count: np.ndarray | None = None,
+                 dropped: int = 0):
+        """An empty film, or one holding ``sums (3, W*H)`` float64 and ``count (W*H,)`` uint32 (not copied)
+        and ``dropped``, the non-finite samples its units left out (so its counts add up to the plan's)."""
         self.width, self.height = width, height
+        self.dropped = dropped
         self.sum = np.zeros((3, width * height)) if sums is None else sums
         # uint32: 4 bytes a pixel instead of 8 (a 4K film is 33 MB less)
         self.count = np.zeros(width * height, dtype=np.uint32) if count is None else count
@@ -145,7 +148,7 @@ def save_checkpoint(path: str, scene, film: Film, units_done: int) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez(f, fingerprint=scene_fingerprint(scene), units_done=np.int64(units_done),
-                     sum=film.sum, count=film.count)
+                     dropped=np.int64(film.dropped), sum=film.sum, count=film.count)
         publish(tmp, target, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -185,7 +188,7 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
     import zipfile  # only resuming needs it (np.savez imports it itself when saving)
     import zlib
 
-    expected = {"fingerprint": None, "units_done": ((), np.dtype(np.int64)),
+    expected = {"fingerprint": None, "units_done": ((), np.dtype(np.int64)), "dropped": ((), np.dtype(np.int64)),
                 "sum": ((3, scene.width * scene.height), np.dtype(np.float64)),
                 "count": ((scene.width * scene.height,), np.dtype(np.uint32))}
     try:
@@ -201,11 +204,11 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
             if fingerprint != scene_fingerprint(scene):
                 raise CheckpointError(f"{path}: made by a different scene or different settings "
                                       "(or an older wavefront); resume with the same scene file and flags")
-            for name in ("units_done", "sum", "count"):
+            for name in ("units_done", "dropped", "sum", "count"):
                 if _member_header(archive, name) != expected[name]:
                     raise ValueError(f"{name} has the wrong shape or type")
             arrays = {}
-            for name in ("units_done", "sum", "count"):
+            for name in ("units_done", "dropped", "sum", "count"):
                 with archive.open(name + ".npy") as f:
                     arrays[name] = np.lib.format.read_array(f, allow_pickle=False)
     except CheckpointError:
@@ -227,12 +230,17 @@ def load_checkpoint(path: str, scene, units_total: int) -> tuple[Film, int]:
         raise CheckpointError(f"{path}: not a wavefront checkpoint (a pixel has more samples than "
                               f"{scene.render.samples_per_pixel} per pixel)")
     # ... nor more than the units done give it (a pixel may have fewer: non-finite samples are
-    # dropped), and a pixel without samples has nothing in its sums
+    # dropped, and the checkpoint says how many: the counts must add up), and a pixel without
+    # samples has nothing in its sums
     count = arrays["count"].reshape(scene.height, scene.width)
     plan = UnitPlan(scene.width, scene.height, scene.render.samples_per_pixel)
     if any((count[rows, columns] > samples).any() for rows, columns, samples in plan.samples_by_region(units_done)):
         raise CheckpointError(f"{path}: not a wavefront checkpoint (a pixel has more samples than the "
                               f"{units_done} units it has done give it)")
+    dropped = int(arrays["dropped"])
+    if dropped != plan.samples_before(units_done) - int(arrays["count"].sum(dtype=np.int64)):
+        raise CheckpointError(f"{path}: not a wavefront checkpoint (its pixels' samples and the {dropped:,} "
+                              f"it dropped do not add up to what its {units_done} units give)")
     if ((arrays["count"] == 0) & (arrays["sum"] != 0.0).any(axis=0)).any():
         raise CheckpointError(f"{path}: not a wavefront checkpoint (a pixel without samples has a non-zero sum)")
-    return Film(scene.width, scene.height, arrays["sum"], arrays["count"]), units_done  # no second copy
+    return Film(scene.width, scene.height, arrays["sum"], arrays["count"], dropped), units_done  # no second copy

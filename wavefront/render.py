@@ -529,6 +529,7 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
         unit_results, trace_stats, peak = result
         for unit, total, count, dropped in unit_results:
             film.add(unit, total, count)
+            film.dropped += dropped
             stats.dropped += dropped
             stats.units_done += 1
             done_samples += unit.size

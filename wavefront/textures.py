@@ -119,7 +119,9 @@ class ImageTexture:
     file from Python: linear RGB, shape ``(height, width, 3)``.
     """
 
-    file: str | None = None
+    # where the pixels came from: not part of the checkpoint fingerprint, which hashes the pixels
+    # themselves (a scene run from another directory names the same picture by another path)
+    file: str | None = field(default=None, metadata={"fingerprint": False})
     filter: str = "bilinear"
     pixels: np.ndarray | None = field(default=None, compare=False, repr=False)
     wrap: str | tuple[str, str] = "clamp"

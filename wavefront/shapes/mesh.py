@@ -53,7 +53,7 @@ class Mesh:
     transform: Transform | None = None
     vertex_normals: np.ndarray | None = None
     uv: np.ndarray | None = None
-    file: str = ""
+    file: str = field(default="", metadata={"fingerprint": False})  # for messages; the arrays are hashed
     dropped: int = field(default=0)  # degenerate faces left out at load time
 
     def __post_init__(self):
