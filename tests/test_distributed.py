@@ -95,3 +95,21 @@ def test_a_local_cluster_is_held_to_the_budget(tmp_path):
             "--spp", 2, "--scheduler", "local:2", "--memory", "320M")
     assert r.returncode == 0, r.stderr
     assert int(r.stderr.split("peak memory ")[1].split()[0]) <= 320, r.stderr
+
+
+def test_a_local_cluster_worker_is_never_planned_as_the_parent():
+    """A reviewer's local:1 under --memory 240M at 2000x2000 peaked at 290 MiB: one
+    worker was planned as if the parent rendered inline, and the image was planned
+    as written after the workers ended, while a Dask cluster outlives the render."""
+    from wavefront.render import BYTES_PER_PATH, MemoryBudgetError, plan_memory
+
+    mib = 1 << 20
+    plan = plan_memory(400 * mib, 1, None, base=60 * mib, film=100 * mib, per_worker=80 * mib, output=50 * mib,
+                       lasting=True)
+    paths = plan.capacity * BYTES_PER_PATH
+    assert plan.workers == 1 and plan.peak <= 400 * mib
+    assert plan.render_peak >= (60 + 100 + 80) * mib + paths
+    assert plan.peak >= (60 + 100 + 50 + 80) * mib + paths  # writing while the worker is still there
+    with pytest.raises(MemoryBudgetError, match="1 worker process 80 MiB"):
+        plan_memory(200 * mib, 1, None, base=60 * mib, film=100 * mib, per_worker=80 * mib, output=50 * mib,
+                    lasting=True)

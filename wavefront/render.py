@@ -142,29 +142,35 @@ class MemoryPlan:
     film: int  # film pages the render will still touch
     per_worker: int  # a worker at rest: the parent's pages it inherits
     output: int  # writing the image, after the workers have ended
+    # The workers are processes that outlive the render (a local Dask cluster): even one is
+    # not the parent, and they are still resident, wavefront and all, while the image is written.
+    lasting: bool = False
 
     @property
     def render_peak(self) -> int:
         paths = self.capacity * BYTES_PER_PATH
-        if self.workers == 1:  # inline: the parent renders
+        if self.workers == 1 and not self.lasting:  # inline: the parent renders
             return self.base + self.film + paths
         results = self.workers * TASKS_IN_FLIGHT * TASK_WAVEFRONTS * self.capacity * RESULT_BYTES_PER_SAMPLE
         return self.base + self.film + results + self.workers * (self.per_worker + paths)
 
     @property
     def peak(self) -> int:
-        return max(self.render_peak, self.base + self.film + self.output)
+        writing = self.base + self.film + self.output
+        if self.lasting:
+            writing += self.workers * (self.per_worker + self.capacity * BYTES_PER_PATH)
+        return max(self.render_peak, writing)
 
 
 def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int, film: int,
-                per_worker: int, output: int, fixed_workers: bool = False) -> MemoryPlan:
+                per_worker: int, output: int, lasting: bool = False) -> MemoryPlan:
     """Workers and wavefront size that fit ``memory`` bytes, the most workers first.
 
     An explicit ``chunk_size`` is kept (fewer workers are used if need be);
     otherwise the wavefront is as large as fits, up to ``MAX_CAPACITY``, and
     a worker is dropped rather than run one below ``GOOD_CAPACITY``.  With
-    ``fixed_workers`` (processes that are already running) only ``workers``
-    is planned for.
+    ``lasting`` (worker processes already running, that outlive the render:
+    see :class:`MemoryPlan`) only ``workers`` is planned for.
 
     Raises
     ------
@@ -173,27 +179,30 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
         message gives the estimate.
     """
     fallback = None
-    for w in range(workers, workers - 1 if fixed_workers else 0, -1):
-        plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
+    for w in range(workers, workers - 1 if lasting else 0, -1):
+        plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output, lasting)
         if chunk_size is None:
             spare = memory - plan.peak
             per_path = w * BYTES_PER_PATH + (w * TASKS_IN_FLIGHT * TASK_WAVEFRONTS * RESULT_BYTES_PER_SAMPLE
                                              if w > 1 else 0)
             capacity = min(MAX_CAPACITY, MIN_CAPACITY + max(0, spare) // per_path)
-            plan = MemoryPlan(w, capacity, base, film, per_worker, output)
+            plan = MemoryPlan(w, capacity, base, film, per_worker, output, lasting)
             # growing the wavefront raises only render_peak; shrink if the estimate rounds over
             while plan.peak > memory and plan.capacity > MIN_CAPACITY:
-                plan = MemoryPlan(w, max(MIN_CAPACITY, plan.capacity * 7 // 8), base, film, per_worker, output)
+                plan = MemoryPlan(w, max(MIN_CAPACITY, plan.capacity * 7 // 8), base, film, per_worker, output,
+                                  lasting)
         if plan.peak <= memory:
             if chunk_size is not None or plan.capacity >= GOOD_CAPACITY or w == 1:
                 return plan
             fallback = fallback or plan
     if fallback is not None:
         return fallback
-    smallest = MemoryPlan(workers if fixed_workers else 1, chunk_size or MIN_CAPACITY, base, film, per_worker, output)
+    smallest = MemoryPlan(workers if lasting else 1, chunk_size or MIN_CAPACITY, base, film, per_worker, output,
+                          lasting)
     parts = [f"the process and scene {_mib(base)}"]
-    if smallest.workers > 1:
-        parts.append(f"{smallest.workers} worker processes {_mib(smallest.workers * per_worker)}")
+    if lasting:
+        parts.append(f"{smallest.workers} worker process{'es' if smallest.workers > 1 else ''} "
+                     f"{_mib(smallest.workers * per_worker)}")
     if film:
         parts.append(f"the film {_mib(film)}")
     if smallest.peak == smallest.base + smallest.film + output:
@@ -492,7 +501,7 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     if local:
         budget = plan_memory(memory, local, chunk_size, base=base + executor.cluster_bytes, film=film_bytes,
                              per_worker=executor.worker_bytes + compile_bytes(scene)[0], output=output,
-                             fixed_workers=True)
+                             lasting=True)
     else:
         budget = plan_memory(memory, 1 if executor is not None else requested, chunk_size, base=base,
                              film=film_bytes, per_worker=base, output=output)
