@@ -389,6 +389,78 @@ def test_images_and_checkpoints_are_synced_before_the_rename(tmp_path, monkeypat
         assert events[i - 1] == ("fsync", events[i][1]), events  # the temporary file itself, just before
 
 
+# --- review8 #2: durability never costs the image -------------------------------------------
+
+def _owner_only_dac(real_open):
+    """``os.open`` as the kernel checks it for a process without CAP_DAC_OVERRIDE
+    (root in a container that dropped it, or any user on their own file): the
+    owner's read/write bits decide."""
+    import errno
+    import stat
+
+    def checked(path, flags, *args, **kwargs):
+        try:
+            st = os.stat(path)
+        except OSError:
+            return real_open(path, flags, *args, **kwargs)
+        if stat.S_ISREG(st.st_mode):
+            access = flags & os.O_ACCMODE
+            need = {os.O_RDONLY: stat.S_IRUSR, os.O_WRONLY: stat.S_IWUSR}.get(access, stat.S_IRUSR | stat.S_IWUSR)
+            if st.st_mode & need != need:
+                raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+        return real_open(path, flags, *args, **kwargs)
+    return checked
+
+
+@pytest.mark.parametrize("ext", ["png", "exr", "npy"])
+def test_an_image_whose_mode_has_no_read_bit_is_still_written_and_synced(tmp_path, monkeypatch, ext):
+    from wavefront import output
+
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "open", _owner_only_dac(os.open))
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")), real_fsync(fd)))
+    image = np.full((2, 3, 3), 0.5, np.float32)
+    kept = tmp_path / f"kept.{ext}"  # an existing write-only file: its mode carries over
+    kept.write_bytes(b"old")
+    os.chmod(kept, 0o200)
+    output.write_image(str(kept), image)
+    assert os.stat(kept).st_mode & 0o777 == 0o200 and kept.read_bytes() != b"old"
+    old = os.umask(0o477)
+    try:
+        output.write_image(str(tmp_path / f"new.{ext}"), image)
+    finally:
+        os.umask(old)
+    assert os.stat(tmp_path / f"new.{ext}").st_mode & 0o777 == 0o200
+    assert sum(".wavefront-" in p for p in synced) == 2, synced  # each temporary file, before its rename
+
+
+def test_a_checkpoint_whose_mode_has_no_read_bit_is_still_written(tmp_path, monkeypatch):
+    from wavefront.film import Film, save_checkpoint
+    from wavefront.scenefile import load_scene
+
+    scene = load_scene(write_scene(tmp_path, BASE))
+    monkeypatch.setattr(os, "open", _owner_only_dac(os.open))
+    old = os.umask(0o477)
+    try:
+        save_checkpoint(str(tmp_path / "ck.npz"), scene, Film(scene.width, scene.height), 0)
+    finally:
+        os.umask(old)
+    assert os.stat(tmp_path / "ck.npz").st_mode & 0o777 == 0o200
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not os.path.exists("/usr/bin/setpriv"),
+                    reason="needs root and setpriv to drop CAP_DAC_OVERRIDE")
+def test_the_command_under_umask_0477_without_dac_override_writes_its_image(tmp_path):
+    scene = write_scene(tmp_path, BASE)
+    r = subprocess.run(["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--inh-caps=-all",
+                        "sh", "-c", f'umask 0477; exec "{sys.executable}" -m wavefront render scene.yaml '
+                        '-o o.png --checkpoint ck.npz -q'], capture_output=True, text=True, cwd=tmp_path,
+                       timeout=300)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert os.path.getsize(tmp_path / "o.png") > 0 and os.path.getsize(tmp_path / "ck.npz") > 0
+
+
 # --- 15: image textures within the colour limit ------------------------------------------
 
 @pytest.mark.parametrize("value,use", [(3e38, "emissive, color"), (1e31, "lambertian, albedo")])
