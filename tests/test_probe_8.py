@@ -332,9 +332,41 @@ def test_a_piped_scene_reads_its_mesh_relative_to_the_current_directory(tmp_path
 def test_relative_paths_of_a_regular_scene_file_stay_relative_to_its_directory(tmp_path):
     from wavefront.scenefile import _relative_to
 
-    assert _relative_to("scenes/a.yaml", True) == "scenes"
-    assert _relative_to("/dev/stdin", True) == "" and _relative_to("/dev/fd/63", True) == ""
-    assert _relative_to("/proc/self/fd/0", True) == "" and _relative_to("scenes/fifo.yaml", False) == ""
+    assert _relative_to("scenes/a.yaml") == "scenes" and _relative_to("scenes/fifo.yaml") == "scenes"
+    assert _relative_to("/dev/stdin") == "" and _relative_to("/dev/fd/63") == ""
+    assert _relative_to("/proc/self/fd/0") == "" and _relative_to("/proc/123/task/124/fd/7") == ""
+    # only a path naming a descriptor: other files in /dev or /proc keep their directory
+    assert _relative_to("/dev/shm/a.yaml") == "/dev/shm" and _relative_to("/dev/fd/x.yaml") == "/dev/fd"
+
+
+def test_a_scene_in_a_named_fifo_reads_its_mesh_and_texture_relative_to_its_directory(tmp_path):
+    import imageio.v3 as iio
+
+    folder = tmp_path / "fifo"
+    folder.mkdir()
+    (folder / "tri.obj").write_text("v -1 -1 -2\nv 1 -1 -2\nv 0 1 -2\nf 1 2 3\n")
+    iio.imwrite(folder / "tiny.png", np.full((2, 2, 3), 200, np.uint8))
+    os.mkfifo(folder / "s.yaml")
+    text = HEAD + ("materials: {m: {type: lambertian, albedo: {type: image, file: tiny.png}}}\n"
+                   "meshes: [{file: tri.obj, material: m}]\n")
+    # cwd is tmp_path, where neither file is: they must be found next to the FIFO
+    command = subprocess.Popen([sys.executable, "-m", "wavefront", "render", "fifo/s.yaml", "-o", "f.npy", "-q"],
+                               cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    import time
+
+    while command.poll() is None:  # until the command opens the FIFO to read (not forever if it fails first)
+        try:
+            fd = os.open(folder / "s.yaml", os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:  # ENXIO: no reader yet
+            time.sleep(0.02)
+            continue
+        os.set_blocking(fd, True)
+        with open(fd, "w") as f:
+            f.write(text)
+        break
+    _, err = command.communicate(timeout=300)
+    assert command.returncode == 0, err
+    assert (tmp_path / "f.npy").exists()
 
 
 # --- 13: a pipe is read in chunks against the budget ---------------------------------
