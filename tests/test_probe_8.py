@@ -1,6 +1,7 @@
 """Hostile probes of session 8 (notes/probe8.md): each test is a defect
 found by probing the command line, fixed with it."""
 
+import math
 import os
 import subprocess
 import sys
@@ -230,6 +231,27 @@ def test_a_turntable_with_a_tiny_vup_renders_every_frame(tmp_path):
     r = run("render", scene, "-o", tmp_path / "g_{frame}.npy", "--frames", 4, "-q")
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert all(np.load(tmp_path / f"g_{k}.npy").mean() > 0.1 for k in range(4))
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("distance", [1e-141, 1e-145, 1e-150, 1.01 * 4.5 * math.sqrt(np.finfo(np.float64).tiny)])
+def test_a_tiny_view_whose_squares_stay_normal_gives_the_image_of_a_unit_one(distance):
+    # review8 #4: 1e-140 refused views float64 renders exactly; the bound is
+    # where a pixel's square leaves the normal numbers (16x9 at vfov 90: a
+    # pixel is 2 distance / 9 wide, so the last case is 1 % above the bound)
+    image = camera_image(look_from=[0, 0, 0], look_at=[0, 0, -distance])
+    assert image.mean() > 0.1
+    np.testing.assert_array_equal(image, camera_image(look_from=[0, 0, 0], look_at=[0, 0, -1]))
+
+
+@pytest.mark.parametrize("distance", [0.99 * 4.5 * math.sqrt(np.finfo(np.float64).tiny), 1e-155, 1e-158])
+def test_a_view_whose_pixel_squares_underflow_is_refused(distance):
+    from wavefront.camera import MIN_PIXEL
+    from wavefront.validation import SceneError
+
+    assert MIN_PIXEL ** 2 >= np.finfo(np.float64).tiny > (0.99 * MIN_PIXEL) ** 2
+    with pytest.raises(SceneError, match="camera.look_at: the view is too small"):
+        camera_image(look_from=[0, 0, 0], look_at=[0, 0, -distance])
 
 
 def test_a_view_too_small_for_float64_is_refused():
