@@ -200,6 +200,23 @@ def test_a_frame_whose_camera_leaves_the_range_is_refused_before_any_frame_is_wr
     refused(r, "scene.yaml: camera.look_from[0]: in frame 1 of --frames 2", outputs=[tmp_path / "f_0.png"])
 
 
+@pytest.mark.parametrize("render,camera,sphere,needle", [
+    # review8 #5: a scene-level problem of a turned frame keeps its own YAML path
+    ("precision: float32", "look_from: [0, 0, 0], look_at: [6e17, 0, 0]", "center: [6e17, 0, 0], radius: 1e17",
+     "scene.yaml: render.precision: in frame 1 of --frames 2"),
+    # the scene's check of the camera names the camera's path once
+    ("max_depth: 3", "look_from: [0, 0, 0], look_at: [7e11, 0, 0], focus_dist: 3e-3",
+     "center: [7e11, 0, 0], radius: 1e11", "scene.yaml: camera.look_at: in frame 1 of --frames 2"),
+])
+def test_a_frames_problem_is_named_by_its_own_yaml_path(tmp_path, render, camera, sphere, needle):
+    scene = write_scene(tmp_path, "image: {width: 16, height: 9}\n"
+                        f"render: {{samples_per_pixel: 1, {render}}}\ncamera: {{{camera}}}\n"
+                        f"materials: {{m: {{type: lambertian}}}}\nspheres: [{{{sphere}, material: m}}]\n")
+    r = run("render", scene, "-o", tmp_path / "f_{frame}.npy", "--frames", 2)
+    refused(r, needle, outputs=[tmp_path / "f_0.npy"])
+    assert "camera.render" not in r.stderr and "camera.camera" not in r.stderr
+
+
 # --- 6: camera vectors of any scale -------------------------------------------------
 
 def camera_image(**camera):
