@@ -528,7 +528,7 @@ def _check_frames(scene, args) -> None:
     a scene is, and let it go (each is ~1 KB: 100,000 frames kept would be
     100 MB; the render loop builds each again): a frame whose camera leaves
     the coordinates' range (or cannot be resolved) is refused before any
-    frame is rendered, naming the scene file, the camera and the frame."""
+    frame is rendered, naming the scene file, the YAML path and the frame."""
     from .scene import turntable
     from .scenefile import SceneError
     from .validation import join, source_of
