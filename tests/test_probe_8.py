@@ -1,6 +1,7 @@
 """Hostile probes of session 8 (notes/probe8.md): each test is a defect
 found by probing the command line, fixed with it."""
 
+import math
 import os
 import subprocess
 import sys
@@ -199,6 +200,23 @@ def test_a_frame_whose_camera_leaves_the_range_is_refused_before_any_frame_is_wr
     refused(r, "scene.yaml: camera.look_from[0]: in frame 1 of --frames 2", outputs=[tmp_path / "f_0.png"])
 
 
+@pytest.mark.parametrize("render,camera,sphere,needle", [
+    # review8 #5: a scene-level problem of a turned frame keeps its own YAML path
+    ("precision: float32", "look_from: [0, 0, 0], look_at: [6e17, 0, 0]", "center: [6e17, 0, 0], radius: 1e17",
+     "scene.yaml: render.precision: in frame 1 of --frames 2"),
+    # the scene's check of the camera names the camera's path once
+    ("max_depth: 3", "look_from: [0, 0, 0], look_at: [7e11, 0, 0], focus_dist: 3e-3",
+     "center: [7e11, 0, 0], radius: 1e11", "scene.yaml: camera.look_at: in frame 1 of --frames 2"),
+])
+def test_a_frames_problem_is_named_by_its_own_yaml_path(tmp_path, render, camera, sphere, needle):
+    scene = write_scene(tmp_path, "image: {width: 16, height: 9}\n"
+                        f"render: {{samples_per_pixel: 1, {render}}}\ncamera: {{{camera}}}\n"
+                        f"materials: {{m: {{type: lambertian}}}}\nspheres: [{{{sphere}, material: m}}]\n")
+    r = run("render", scene, "-o", tmp_path / "f_{frame}.npy", "--frames", 2)
+    refused(r, needle, outputs=[tmp_path / "f_0.npy"])
+    assert "camera.render" not in r.stderr and "camera.camera" not in r.stderr
+
+
 # --- 6: camera vectors of any scale -------------------------------------------------
 
 def camera_image(**camera):
@@ -230,6 +248,27 @@ def test_a_turntable_with_a_tiny_vup_renders_every_frame(tmp_path):
     r = run("render", scene, "-o", tmp_path / "g_{frame}.npy", "--frames", 4, "-q")
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert all(np.load(tmp_path / f"g_{k}.npy").mean() > 0.1 for k in range(4))
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("distance", [1e-141, 1e-145, 1e-150, 1.01 * 4.5 * math.sqrt(np.finfo(np.float64).tiny)])
+def test_a_tiny_view_whose_squares_stay_normal_gives_the_image_of_a_unit_one(distance):
+    # review8 #4: 1e-140 refused views float64 renders exactly; the bound is
+    # where a pixel's square leaves the normal numbers (16x9 at vfov 90: a
+    # pixel is 2 distance / 9 wide, so the last case is 1 % above the bound)
+    image = camera_image(look_from=[0, 0, 0], look_at=[0, 0, -distance])
+    assert image.mean() > 0.1
+    np.testing.assert_array_equal(image, camera_image(look_from=[0, 0, 0], look_at=[0, 0, -1]))
+
+
+@pytest.mark.parametrize("distance", [0.99 * 4.5 * math.sqrt(np.finfo(np.float64).tiny), 1e-155, 1e-158])
+def test_a_view_whose_pixel_squares_underflow_is_refused(distance):
+    from wavefront.camera import MIN_PIXEL
+    from wavefront.validation import SceneError
+
+    assert MIN_PIXEL ** 2 >= np.finfo(np.float64).tiny > (0.99 * MIN_PIXEL) ** 2
+    with pytest.raises(SceneError, match="camera.look_at: the view is too small"):
+        camera_image(look_from=[0, 0, 0], look_at=[0, 0, -distance])
 
 
 def test_a_view_too_small_for_float64_is_refused():
@@ -332,9 +371,41 @@ def test_a_piped_scene_reads_its_mesh_relative_to_the_current_directory(tmp_path
 def test_relative_paths_of_a_regular_scene_file_stay_relative_to_its_directory(tmp_path):
     from wavefront.scenefile import _relative_to
 
-    assert _relative_to("scenes/a.yaml", True) == "scenes"
-    assert _relative_to("/dev/stdin", True) == "" and _relative_to("/dev/fd/63", True) == ""
-    assert _relative_to("/proc/self/fd/0", True) == "" and _relative_to("scenes/fifo.yaml", False) == ""
+    assert _relative_to("scenes/a.yaml") == "scenes" and _relative_to("scenes/fifo.yaml") == "scenes"
+    assert _relative_to("/dev/stdin") == "" and _relative_to("/dev/fd/63") == ""
+    assert _relative_to("/proc/self/fd/0") == "" and _relative_to("/proc/123/task/124/fd/7") == ""
+    # only a path naming a descriptor: other files in /dev or /proc keep their directory
+    assert _relative_to("/dev/shm/a.yaml") == "/dev/shm" and _relative_to("/dev/fd/x.yaml") == "/dev/fd"
+
+
+def test_a_scene_in_a_named_fifo_reads_its_mesh_and_texture_relative_to_its_directory(tmp_path):
+    import imageio.v3 as iio
+
+    folder = tmp_path / "fifo"
+    folder.mkdir()
+    (folder / "tri.obj").write_text("v -1 -1 -2\nv 1 -1 -2\nv 0 1 -2\nf 1 2 3\n")
+    iio.imwrite(folder / "tiny.png", np.full((2, 2, 3), 200, np.uint8))
+    os.mkfifo(folder / "s.yaml")
+    text = HEAD + ("materials: {m: {type: lambertian, albedo: {type: image, file: tiny.png}}}\n"
+                   "meshes: [{file: tri.obj, material: m}]\n")
+    # cwd is tmp_path, where neither file is: they must be found next to the FIFO
+    command = subprocess.Popen([sys.executable, "-m", "wavefront", "render", "fifo/s.yaml", "-o", "f.npy", "-q"],
+                               cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    import time
+
+    while command.poll() is None:  # until the command opens the FIFO to read (not forever if it fails first)
+        try:
+            fd = os.open(folder / "s.yaml", os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:  # ENXIO: no reader yet
+            time.sleep(0.02)
+            continue
+        os.set_blocking(fd, True)
+        with open(fd, "w") as f:
+            f.write(text)
+        break
+    _, err = command.communicate(timeout=300)
+    assert command.returncode == 0, err
+    assert (tmp_path / "f.npy").exists()
 
 
 # --- 13: a pipe is read in chunks against the budget ---------------------------------
@@ -387,6 +458,78 @@ def test_images_and_checkpoints_are_synced_before_the_rename(tmp_path, monkeypat
     assert len(renames) == 4
     for i in renames:
         assert events[i - 1] == ("fsync", events[i][1]), events  # the temporary file itself, just before
+
+
+# --- review8 #2: durability never costs the image -------------------------------------------
+
+def _owner_only_dac(real_open):
+    """``os.open`` as the kernel checks it for a process without CAP_DAC_OVERRIDE
+    (root in a container that dropped it, or any user on their own file): the
+    owner's read/write bits decide."""
+    import errno
+    import stat
+
+    def checked(path, flags, *args, **kwargs):
+        try:
+            st = os.stat(path)
+        except OSError:
+            return real_open(path, flags, *args, **kwargs)
+        if stat.S_ISREG(st.st_mode):
+            access = flags & os.O_ACCMODE
+            need = {os.O_RDONLY: stat.S_IRUSR, os.O_WRONLY: stat.S_IWUSR}.get(access, stat.S_IRUSR | stat.S_IWUSR)
+            if st.st_mode & need != need:
+                raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+        return real_open(path, flags, *args, **kwargs)
+    return checked
+
+
+@pytest.mark.parametrize("ext", ["png", "exr", "npy"])
+def test_an_image_whose_mode_has_no_read_bit_is_still_written_and_synced(tmp_path, monkeypatch, ext):
+    from wavefront import output
+
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "open", _owner_only_dac(os.open))
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")), real_fsync(fd)))
+    image = np.full((2, 3, 3), 0.5, np.float32)
+    kept = tmp_path / f"kept.{ext}"  # an existing write-only file: its mode carries over
+    kept.write_bytes(b"old")
+    os.chmod(kept, 0o200)
+    output.write_image(str(kept), image)
+    assert os.stat(kept).st_mode & 0o777 == 0o200 and kept.read_bytes() != b"old"
+    old = os.umask(0o477)
+    try:
+        output.write_image(str(tmp_path / f"new.{ext}"), image)
+    finally:
+        os.umask(old)
+    assert os.stat(tmp_path / f"new.{ext}").st_mode & 0o777 == 0o200
+    assert sum(".wavefront-" in p for p in synced) == 2, synced  # each temporary file, before its rename
+
+
+def test_a_checkpoint_whose_mode_has_no_read_bit_is_still_written(tmp_path, monkeypatch):
+    from wavefront.film import Film, save_checkpoint
+    from wavefront.scenefile import load_scene
+
+    scene = load_scene(write_scene(tmp_path, BASE))
+    monkeypatch.setattr(os, "open", _owner_only_dac(os.open))
+    old = os.umask(0o477)
+    try:
+        save_checkpoint(str(tmp_path / "ck.npz"), scene, Film(scene.width, scene.height), 0)
+    finally:
+        os.umask(old)
+    assert os.stat(tmp_path / "ck.npz").st_mode & 0o777 == 0o200
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not os.path.exists("/usr/bin/setpriv"),
+                    reason="needs root and setpriv to drop CAP_DAC_OVERRIDE")
+def test_the_command_under_umask_0477_without_dac_override_writes_its_image(tmp_path):
+    scene = write_scene(tmp_path, BASE)
+    r = subprocess.run(["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--inh-caps=-all",
+                        "sh", "-c", f'umask 0477; exec "{sys.executable}" -m wavefront render scene.yaml '
+                        '-o o.png --checkpoint ck.npz -q'], capture_output=True, text=True, cwd=tmp_path,
+                       timeout=300)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert os.path.getsize(tmp_path / "o.png") > 0 and os.path.getsize(tmp_path / "ck.npz") > 0
 
 
 # --- 15: image textures within the colour limit ------------------------------------------

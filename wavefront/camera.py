@@ -26,9 +26,10 @@ STEPS_PER_PIXEL = 4
 # 45-51 ns a ray whole against 34-38 in blocks of 8-16 Ki.
 RAY_BLOCK = 1 << 13
 # A camera ray's direction is normalised through the squares of its
-# components, a pixel's width apart at the focus plane: below this their
-# squares underflow float64 (1e-300 is 1e-150 squared) and the rays collapse.
-MIN_PIXEL = 1e-140
+# components, a pixel's width apart at the focus plane: below the square root
+# of float64's smallest normal number (~1.49e-154) their squares are subnormal
+# or zero, lose their precision, and the rays collapse.
+MIN_PIXEL = math.sqrt(np.finfo(np.float64).tiny)
 
 Vec3 = tuple[float, float, float]
 
@@ -100,7 +101,7 @@ class Camera:
         if not pixel >= MIN_PIXEL:
             fail(self, "look_at", f"the view is too small to render in float64: a pixel at the focus distance "
                                   f"{focus:.3g} is {pixel:.3g} wide, and ray directions are normalised through "
-                                  f"their squares, which underflow below about {MIN_PIXEL:g}; "
+                                  f"their squares, which underflow below about {MIN_PIXEL:.3g}; "
                                   + ("increase focus_dist" if self.focus_dist is not None else
                                      "move look_at farther from look_from, or set focus_dist"))
         if not pixel >= STEPS_PER_PIXEL * spacing:

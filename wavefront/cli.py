@@ -528,18 +528,20 @@ def _check_frames(scene, args) -> None:
     a scene is, and let it go (each is ~1 KB: 100,000 frames kept would be
     100 MB; the render loop builds each again): a frame whose camera leaves
     the coordinates' range (or cannot be resolved) is refused before any
-    frame is rendered, naming the scene file, the camera and the frame."""
+    frame is rendered, naming the scene file, the YAML path and the frame."""
     from .scene import turntable
     from .scenefile import SceneError
-    from .validation import join
+    from .validation import join, source_of
 
     for k in range(args.frames or 0):
         try:
             turntable(scene, k, args.frames)
         except SceneError as e:
-            raise SceneError(args.scene, join("camera", e.path.removeprefix("camera").lstrip(".")),
-                             f"in frame {k} of --frames {args.frames} (look_from turned about look_at): "
-                             f"{e.problem}") from None
+            # the turned camera's own checks name its fields (look_from[0]); the
+            # scene's (render.precision, camera.look_from) name their whole path
+            path = join("camera", e.path) if e.source == source_of(scene.camera) else e.path
+            raise SceneError(args.scene, path, f"in frame {k} of --frames {args.frames} (look_from turned about "
+                                               f"look_at): {e.problem}") from None
 
 
 def _refuse_unless_loading_fits(path: str, memory: int) -> None:

@@ -353,30 +353,51 @@ def publish(tmp: str, target: str, shown: str | None = None) -> None:
         st = None
     if st is not None:
         _refuse_unless_replaceable(shown or target, st)
-        os.chmod(tmp, stat.S_IMODE(st.st_mode))
-        if os.geteuid() == 0:
+    # Opened for the fsync with mode 0600 first: mkstemp's 0600 less the umask
+    # (0477) and the mode the file takes (an existing mode-0200 target's) may
+    # have no read bit, and an open by name then fails even for root without
+    # CAP_DAC_OVERRIDE; the owner may always chmod.  Syncing is durability
+    # only: a file that cannot be opened for it is published unsynced, never lost.
+    try:
+        os.chmod(tmp, stat.S_IRUSR | stat.S_IWUSR)
+        fd = os.open(tmp, os.O_RDONLY)
+    except OSError:
+        fd = None
+    try:
+        mode = stat.S_IMODE(st.st_mode) if st is not None else 0o666 & ~_umask()
+        if fd is not None:
+            os.fchmod(fd, mode)
+        else:
+            os.chmod(tmp, mode)
+        if st is not None and os.geteuid() == 0:
             with contextlib.suppress(OSError):
                 os.chown(tmp, st.st_uid, st.st_gid)
-    else:
-        os.chmod(tmp, 0o666 & ~_umask())
-    # on disk before it takes the target's name: after a crash or power cut
-    # the target is the old file or the whole new one, never an empty one
-    _sync(tmp, os.O_RDONLY)
+        # on disk before it takes the target's name: after a crash or power cut
+        # the target is the old file or the whole new one, never an empty one
+        if fd is not None:
+            _fsync(fd)
+    finally:
+        if fd is not None:
+            os.close(fd)
     os.replace(tmp, target)
-    with contextlib.suppress(OSError):  # the rename itself, where the directory can be opened
-        _sync(os.path.dirname(target), os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    # the rename itself, where the directory can be opened (best-effort too)
+    with contextlib.suppress(OSError):
+        dfd = os.open(os.path.dirname(target), os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        try:
+            _fsync(dfd)
+        finally:
+            os.close(dfd)
 
 
-def _sync(path: str, flags: int) -> None:
-    """``fsync`` a file by name; a file system that cannot (EINVAL) is skipped."""
-    fd = os.open(path, flags)
+def _fsync(fd: int) -> None:
+    """``fsync`` a descriptor; a file system that cannot (EINVAL, ENOTSUP) is
+    skipped.  Any other error (EIO: the data did not reach the disk) reaches
+    the caller, whose rescue saves the image elsewhere."""
     try:
         os.fsync(fd)
     except OSError as e:
         if e.errno not in (errno.EINVAL, errno.ENOTSUP):
             raise
-    finally:
-        os.close(fd)
 
 
 def _umask() -> int:

@@ -27,7 +27,6 @@ import math
 import operator
 import os
 import re
-import stat
 import sys
 import unicodedata
 import warnings
@@ -465,12 +464,11 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
     source = os.fsdecode(path)  # a bytes path too: the messages and the mesh paths are text
     if memory is not None:
         memory = check_budget(memory)  # ValueError, as render_scene's
-    regular = True
     try:
         with open(source, "rb") as f:
             try:
                 st = os.fstat(f.fileno())
-                size, regular = st.st_size, stat.S_ISREG(st.st_mode)
+                size = st.st_size
             except OSError:
                 size = None
             if size and size > MAX_FILE_BYTES:  # refuse before reading a huge file
@@ -485,7 +483,7 @@ def load_scene(path: str | os.PathLike, *, memory: int | None = None) -> Scene:
         room = None if memory is None else min(MAX_VALUES, max(0, memory - current_rss()) // YAML_BYTES_PER_VALUE)
         doc = read_yaml(data, source, size=size, max_values=room)
         del data
-        return _scene_from_document(doc, source, name, consume=True, memory=memory, base=_relative_to(source, regular))
+        return _scene_from_document(doc, source, name, consume=True, memory=memory, base=_relative_to(source))
 
 
 STREAM_CHUNK = 1 << 20  # a pipe is read this much at a time, the budget checked after each
@@ -509,21 +507,22 @@ def _read_stream(f, source: str, memory: int | None) -> bytes:
     return bytes(buffer)
 
 
-# Where a file descriptor is opened by name (bash's <(...), /dev/stdin): a
-# scene read there has no directory of its own
-_DESCRIPTOR_DIRECTORIES = ("/dev", "/dev/fd", "/proc/self/fd")
+# Paths that name an open file descriptor (bash's <(...) is /dev/fd/63,
+# /dev/stdin is /proc/self/fd/0): a scene read there has no directory of its
+# own (/dev or /dev/fd means nothing to a mesh path)
+_DESCRIPTOR_PATH = re.compile(r"/dev/(?:stdin|stdout|stderr|fd/[0-9]+)"
+                              r"|/proc/(?:self|thread-self|[0-9]+)(?:/task/[0-9]+)?/fd/[0-9]+")
 
 
-def _relative_to(source: str, regular: bool) -> str:
+def _relative_to(source: str) -> str:
     """The directory a scene file's relative paths (meshes, textures) are
     resolved against: the file's own, or the current directory ("") for a
-    scene read from standard input, a pipe or another file that is not a
-    regular file (``/dev/stdin``'s directory, /dev, means nothing)."""
-    directory = os.path.dirname(source)
-    if not regular or os.path.abspath(directory or ".") in _DESCRIPTOR_DIRECTORIES \
-            or re.fullmatch(r"/proc/[0-9]+/fd", os.path.abspath(directory or ".")):
+    scene read through a path that names a file descriptor (``/dev/stdin``,
+    ``/dev/fd/N``, ``/proc/*/fd/N``).  A named FIFO is a file in a
+    directory like any other: its own directory, as for a regular file."""
+    if _DESCRIPTOR_PATH.fullmatch(os.path.abspath(source)):
         return ""
-    return directory
+    return os.path.dirname(source)
 
 
 @contextlib.contextmanager
