@@ -138,7 +138,7 @@ def render_sampler(cs: CompiledScene, key) -> Sampler:
 
 
 def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: int, stop: int,
-                 pixel_centres: bool = False, before: PathBatch | None = None) -> PathBatch:
+                 pixel_centres: bool = False, before: PathBatch | None = None, mis: bool = True) -> PathBatch:
     """Stage 1: new paths for the job's slots ``start:stop``.
 
     ``pixel_centres`` puts every sample at its pixel's centre instead of
@@ -146,6 +146,9 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     paths in flight, if any: the result is then ``PathBatch.concat(before,
     <the new paths>)``, each new field written once, into its place in the
     joined array (not made on its own and copied again: ~70 bytes a path).
+    ``mis``: whether the paths carry what MIS weights read (``bsdf_pdf``,
+    ``specular``); without light sampling no stage reads them, and they are
+    None (neither made, kept up nor compacted).
     """
     pixel, sample_id = job.samples(start, stop)
     state = sampler.start(pixel, sample_id)
@@ -169,8 +172,8 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
         slot=np.arange(start, stop, dtype=np.int64),
         state=state,
         depth=np.zeros(n, dtype=np.int32),
-        bsdf_pdf=np.zeros(n),
-        specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
+        bsdf_pdf=np.zeros(n) if mis else None,
+        specular=np.ones(n, dtype=bool) if mis else None,  # seen from the camera: emission counts in full
         eta_scale=np.ones(n),
         time=time,
         # camera rays start in the media around the camera
@@ -314,10 +317,11 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     # sampled with a density
     lit = bool((table.kind.take(cs.shapes.material_idx) == table.code("emissive")).any())
     diffuse_material = diffuse_materials(table)
-    live, next_slot = camera_paths(cs, frame, sampler, job, 0, 0), 0
+    mis = emitters is not None  # only emission hits' MIS weights read a path's bsdf_pdf and specular
+    live, next_slot = camera_paths(cs, frame, sampler, job, 0, 0, mis=mis), 0
     riding = None  # shadow rays whose any-hit query goes with the next bounce's nearest-hit one
     while True:
-        live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity)
+        live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity, mis)
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
@@ -342,8 +346,8 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                 absorbed = emitted(cs, live, surface, radiance, emitters, gone, kind)
             else:  # emitted's answer where no primitive emits
                 absorbed = np.zeros(len(live), dtype=bool) if gone is None else gone.copy()
-            diffuse = (diffuse_material.take(surface.material_idx)
-                       if emitters is not None or roulette is not None else None)
+            # read by light sampling and MIS (the paths' specular) only
+            diffuse = diffuse_material.take(surface.material_idx) if mis else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
@@ -351,7 +355,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                                                                     absorbed, settings.depth, albedo, drawn))
         if len(live):
             direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn, kind, runs)
-            if diffuse is not None:
+            if mis or roulette is not None:  # roulette reads eta_scale
                 record_sampling(cs, live, surface, diffuse, direction, kind,
                                 None if runs is None else (0, 0) if groups.glass is None else runs[groups.glass])
             if roulette is not None:
@@ -380,14 +384,15 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     return radiance
 
 
-def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch, next_slot: int, capacity: int):
+def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch, next_slot: int, capacity: int,
+           mis: bool = True):
     """Stage 1: free slots take camera rays of the job's next samples, once
     enough are free (so a long tail of a few deep paths never costs a
     near-empty NumPy call per bounce).  Returns the batch and the next slot."""
     free = capacity - len(live)
     if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
         stop = min(job.size, next_slot + free)
-        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live)
+        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live, mis=mis)
         next_slot = stop
     return live, next_slot
 
@@ -729,16 +734,19 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
     is never read.  Refraction multiplies ``eta^2`` by the squared relative
     index crossed (``kind``: the hits' material kinds, if taken already;
     ``glass_run``: the glass rows' ``(start, stop)``, if stage 3 grouped them).
+    ``diffuse`` None: the paths carry no MIS fields (see :func:`camera_paths`),
+    and only ``eta_scale`` is kept up.
     """
     table = cs.materials
-    live.specular = ~diffuse
-    # float64 whatever the render's precision (lambertian_pdf's type): a batch's
-    # field must not change type with its refill history, or MIS arithmetic
-    # (and the image) would depend on the chunk size.  Every row's, specular
-    # or not: emission_weight reads it only after a diffuse vertex, and a
-    # where zeroing the others cost ~50 us of a 32 Ki path bounce (its
-    # random mask mispredicts), ~0.5 % of the bounce.
-    live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
+    if diffuse is not None:
+        live.specular = ~diffuse
+        # float64 whatever the render's precision (lambertian_pdf's type): a
+        # batch's field must not change type with its refill history, or MIS
+        # arithmetic (and the image) would depend on the chunk size.  Every
+        # row's, specular or not: emission_weight reads it only after a
+        # diffuse vertex, and a where zeroing the others cost ~50 us of a 32
+        # Ki path bounce (its random mask mispredicts), ~0.5 % of the bounce.
+        live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
     if glass_run is not None:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
         start, stop = glass_run
@@ -1059,8 +1067,9 @@ def scatter_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, point
     u = sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     direction = random_unit_vector(u[0], u[1])
     live.throughput *= albedo
-    live.bsdf_pdf = np.full(len(live), ISOTROPIC_PDF)
-    live.specular = np.zeros(len(live), dtype=bool)
+    if live.bsdf_pdf is not None:  # the MIS fields, where the paths carry them (see camera_paths)
+        live.bsdf_pdf = np.full(len(live), ISOTROPIC_PDF)
+        live.specular = np.zeros(len(live), dtype=bool)
     if settings.russian_roulette is not None:
         absorbed = russian_roulette(sampler, live, absorbed, settings.russian_roulette.depth)
     live.origin = point
