@@ -266,8 +266,10 @@ class MaterialTable:
         return value
 
 
-def scatter_lambertian(direction, normal, front_face, albedo, u):
-    """Cosine-weighted diffuse bounce: ``n + random_unit_vector()``.
+def scatter_lambertian(direction, normal, front_face, albedo, u, out=None):
+    """Cosine-weighted diffuse bounce: ``n + random_unit_vector()``.  The
+    scattered directions go into ``out`` ``(3, N)`` if given (for each
+    kernel here, ``out`` may be ``direction`` itself: it is read first).
 
     A unit normal plus a uniform point on the unit sphere is distributed with
     density ``cos(theta) / pi`` over the hemisphere (RTIOW 1, "True Lambertian
@@ -285,7 +287,7 @@ def scatter_lambertian(direction, normal, front_face, albedo, u):
         scatter(scattered, degenerate, fallback)
         squared[degenerate] = dot(fallback, fallback)  # their new columns' (dot works column by column)
     absorbed = np.zeros(direction.shape[1], dtype=bool)
-    return albedo, normalize(scattered, out=scattered, squared_length=squared), absorbed
+    return albedo, normalize(scattered, out=scattered if out is None else out, squared_length=squared), absorbed
 
 
 def lambertian_pdf(normal, direction):
@@ -306,7 +308,7 @@ def lambertian_eval(albedo, normal, direction):
     return albedo * lambertian_pdf(normal, direction)
 
 
-def scatter_metal(direction, normal, front_face, albedo, fuzz, u):
+def scatter_metal(direction, normal, front_face, albedo, fuzz, u, out=None):
     """Mirror reflection jittered by ``fuzz * random_unit_vector()``.
 
     Rows whose scattered direction does not point above the surface
@@ -320,10 +322,10 @@ def scatter_metal(direction, normal, front_face, albedo, fuzz, u):
     else:
         scattered = reflected + scattered
     absorbed = dot(scattered, normal) <= 0.0
-    return albedo, normalize(scattered, out=scattered), absorbed
+    return albedo, normalize(scattered, out=scattered if out is None else out), absorbed
 
 
-def scatter_dielectric(direction, normal, front_face, refraction_index, u):
+def scatter_dielectric(direction, normal, front_face, refraction_index, u, out=None):
     """Reflect with probability Schlick(cos, ratio), else refract (Snell).
 
     ``ratio`` is 1/index entering through the front face and index leaving;
@@ -347,4 +349,5 @@ def scatter_dielectric(direction, normal, front_face, refraction_index, u):
     # rows that mirror are few and random: write them by index, not with a where
     scatter(scattered, mirror, reflect(gather(direction, mirror), gather(normal, mirror)))
     n = direction.shape[1]
-    return np.ones((3, n), dtype=direction.dtype), normalize(scattered, out=scattered), np.zeros(n, dtype=bool)
+    return (np.ones((3, n), dtype=direction.dtype), normalize(scattered, out=scattered if out is None else out),
+            np.zeros(n, dtype=bool))

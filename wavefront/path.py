@@ -138,7 +138,7 @@ def render_sampler(cs: CompiledScene, key) -> Sampler:
 
 
 def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: int, stop: int,
-                 pixel_centres: bool = False, before: PathBatch | None = None) -> PathBatch:
+                 pixel_centres: bool = False, before: PathBatch | None = None, mis: bool = True) -> PathBatch:
     """Stage 1: new paths for the job's slots ``start:stop``.
 
     ``pixel_centres`` puts every sample at its pixel's centre instead of
@@ -146,6 +146,9 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     paths in flight, if any: the result is then ``PathBatch.concat(before,
     <the new paths>)``, each new field written once, into its place in the
     joined array (not made on its own and copied again: ~70 bytes a path).
+    ``mis``: whether the paths carry what MIS weights read (``bsdf_pdf``,
+    ``specular``); without light sampling no stage reads them, and they are
+    None (neither made, kept up nor compacted).
     """
     pixel, sample_id = job.samples(start, stop)
     state = sampler.start(pixel, sample_id)
@@ -169,8 +172,8 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
         slot=np.arange(start, stop, dtype=np.int64),
         state=state,
         depth=np.zeros(n, dtype=np.int32),
-        bsdf_pdf=np.zeros(n),
-        specular=np.ones(n, dtype=bool),  # seen from the camera: emission counts in full
+        bsdf_pdf=np.zeros(n) if mis else None,
+        specular=np.ones(n, dtype=bool) if mis else None,  # seen from the camera: emission counts in full
         eta_scale=np.ones(n),
         time=time,
         # camera rays start in the media around the camera
@@ -212,17 +215,19 @@ def _joined_camera_paths(cs: CompiledScene, before: PathBatch, n: int, origin, d
 
 # Scatter kernels: ``albedo`` is the rows' textured albedo (3, n), or None to
 # gather the material table's plain colour.
-def _lambertian(table, m, d, n, front_face, u, albedo=None):
-    return scatter_lambertian(d, n, front_face, gather(table.albedo, m) if albedo is None else albedo, u)
+# ``out``, if given, takes the new directions (it may be ``d`` itself: each
+# kernel reads ``d`` before it writes them).
+def _lambertian(table, m, d, n, front_face, u, albedo=None, out=None):
+    return scatter_lambertian(d, n, front_face, gather(table.albedo, m) if albedo is None else albedo, u, out)
 
 
-def _metal(table, m, d, n, front_face, u, albedo=None):
+def _metal(table, m, d, n, front_face, u, albedo=None, out=None):
     return scatter_metal(d, n, front_face, gather(table.albedo, m) if albedo is None else albedo,
-                         table.fuzz.take(m), u)
+                         table.fuzz.take(m), u, out)
 
 
-def _dielectric(table, m, d, n, front_face, u, albedo=None):
-    return scatter_dielectric(d, n, front_face, table.refraction_index.take(m), u)
+def _dielectric(table, m, d, n, front_face, u, albedo=None, out=None):
+    return scatter_dielectric(d, n, front_face, table.refraction_index.take(m), u, out)
 
 
 # Which material kinds each scatter kernel serves.  Phong surfaces are
@@ -305,10 +310,18 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     sampler = render_sampler(cs, key)
     emitters = cs.emitters if settings.light_sampling and cs.emitters is not None and len(cs.emitters) else None
     roulette = settings.russian_roulette
-    live, next_slot = camera_paths(cs, frame, sampler, job, 0, 0), 0
+    table = cs.materials
+    # Decided once a trace over the table's few rows, not per bounce: whether
+    # some primitive emits (if none, stage 4 has nothing to find: three
+    # spheres' lamp is a material no sphere wears), and which materials are
+    # sampled with a density
+    lit = bool((table.kind.take(cs.shapes.material_idx) == table.code("emissive")).any())
+    diffuse_material = diffuse_materials(table)
+    mis = emitters is not None  # only emission hits' MIS weights read a path's bsdf_pdf and specular
+    live, next_slot = camera_paths(cs, frame, sampler, job, 0, 0, mis=mis), 0
     riding = None  # shadow rays whose any-hit query goes with the next bounce's nearest-hit one
     while True:
-        live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity)
+        live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity, mis)
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
@@ -326,9 +339,15 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         live, surface, gone, runs = escaped(cs, live, hits, radiance, groups)
         if len(live):
             drawn = draw_together(cs, sampler, live, emitters, roulette)
-            kind = cs.materials.kind.take(surface.material_idx)  # each hit's material kind, taken once a bounce
-            absorbed = emitted(cs, live, surface, radiance, emitters, gone, kind)
-            diffuse = diffuse_rows(cs, surface) if emitters is not None or roulette is not None else None
+            # each hit's material kind, taken once a bounce where a stage reads
+            # it (grouped rows and no emitter: none does)
+            kind = table.kind.take(surface.material_idx) if lit or runs is None else None
+            if lit:
+                absorbed = emitted(cs, live, surface, radiance, emitters, gone, kind)
+            else:  # emitted's answer where no primitive emits
+                absorbed = np.zeros(len(live), dtype=bool) if gone is None else gone.copy()
+            # read by light sampling and MIS (the paths' specular) only
+            diffuse = diffuse_material.take(surface.material_idx) if mis else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
@@ -336,9 +355,9 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
                                                                     absorbed, settings.depth, albedo, drawn))
         if len(live):
             direction, absorbed = scatter_hits(cs, sampler, kernels, live, surface, absorbed, albedo, drawn, kind, runs)
-            if diffuse is not None:
+            if mis or roulette is not None:  # roulette reads eta_scale
                 record_sampling(cs, live, surface, diffuse, direction, kind,
-                                None if runs is None or groups.glass is None else runs[groups.glass])
+                                None if runs is None else (0, 0) if groups.glass is None else runs[groups.glass])
             if roulette is not None:
                 absorbed = russian_roulette(sampler, live, absorbed, roulette.depth, drawn)
             if cs.media is not None:
@@ -365,14 +384,15 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     return radiance
 
 
-def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch, next_slot: int, capacity: int):
+def refill(cs: CompiledScene, frame, sampler: Sampler, job: Job, live: PathBatch, next_slot: int, capacity: int,
+           mis: bool = True):
     """Stage 1: free slots take camera rays of the job's next samples, once
     enough are free (so a long tail of a few deep paths never costs a
     near-empty NumPy call per bounce).  Returns the batch and the next slot."""
     free = capacity - len(live)
     if next_slot < job.size and (len(live) == 0 or free >= capacity * REFILL_FRACTION):
         stop = min(job.size, next_slot + free)
-        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live)
+        live = camera_paths(cs, frame, sampler, job, next_slot, stop, before=live, mis=mis)
         next_slot = stop
     return live, next_slot
 
@@ -416,20 +436,19 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGr
     overwrite), and stage 7b finds the glass rows there.  No stage reads a
     path's position in the batch (see :func:`advance`).
     """
-    hit = hits.primitive_idx >= 0
-    esc_idx = true_rows(~hit)
+    esc_idx = true_rows(hits.primitive_idx < 0)
     t, primitive_idx = hits.t, hits.primitive_idx
     gone = runs = None
     if esc_idx.size:
         scatter_add(radiance, live.slot.take(esc_idx),
                     gather(live.throughput, esc_idx) * cs.scene.background.radiance(gather(live.direction, esc_idx)))
         if cs.media is None and esc_idx.size <= ESCAPED_KEPT_FRACTION * len(live):
-            gone = ~hit
+            gone = primitive_idx < 0
             t, primitive_idx = t.copy(), primitive_idx.copy()
             t[esc_idx], primitive_idx[esc_idx] = 0, 0
         else:
             if groups is None:
-                hit_idx = true_rows(hit)
+                hit_idx = true_rows(primitive_idx >= 0)
             else:
                 hit_idx, runs = groups.order(primitive_idx)
             live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
@@ -560,12 +579,15 @@ def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
 def diffuse_rows(cs: CompiledScene, surface) -> np.ndarray:
     """Hits whose material is sampled with a density (lambertian, and phong
     as lambertian): the vertices next-event estimation serves."""
-    table = cs.materials
     # decided per material (a handful of rows), then gathered per hit: np.isin
     # over the hits cost ~0.1 ms a bounce, nearly all of it fixed, a tenth of
     # each of the tail's near-empty bounces
-    diffuse_material = (table.kind == table.code("lambertian")) | (table.kind == table.code("phong"))
-    return diffuse_material.take(surface.material_idx)
+    return diffuse_materials(cs.materials).take(surface.material_idx)
+
+
+def diffuse_materials(table) -> np.ndarray:
+    """``(K,)`` bool: the table's materials sampled with a density (see :func:`diffuse_rows`)."""
+    return (table.kind == table.code("lambertian")) | (table.kind == table.code("phong"))
 
 
 def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch, surface, diffuse, absorbed,
@@ -648,8 +670,6 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
     and the ``absorbed`` mask."""
     table = cs.materials
     material, normal, front_face = surface.material_idx, surface.normal, surface.front_face
-    if kind is None:
-        kind = table.kind.take(material)
     u = drawn.bounce if drawn is not None else sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     if len(kernels) == 1 and not (table.kind == table.code("emissive")).any():
         # a lone kind and no emitters: no routing, no gathers (absorbed holds
@@ -664,12 +684,17 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         for (start, stop), (_, kernel) in zip(runs, kernels):
             if stop > start:
                 run = slice(start, stop)
-                att, d, dead = kernel(table, material[run], direction[:, run], normal[:, run], front_face[run],
-                                      u[:, run], None if albedo is None else albedo[:, run])
-                live.throughput[:, run] *= att
-                direction[:, run] = d
-                absorbed[run] |= dead
+                d = direction[:, run]
+                # the new directions straight into the batch's (no (3, n) copy)
+                att, _, dead = kernel(table, material[run], d, normal[:, run], front_face[run],
+                                      u[:, run], None if albedo is None else albedo[:, run], out=d)
+                if kernel is not _dielectric:  # glass attenuates by 1: x * 1 = x exactly, not multiplied
+                    live.throughput[:, run] *= att
+                if kernel is _metal:  # the others absorb nothing
+                    absorbed[run] |= dead
         return direction, absorbed
+    if kind is None:
+        kind = table.kind.take(material)
     routes = [(true_rows(np.isin(table.kind, codes).take(material) if len(codes) > 1 else kind == codes[0]), kernel)
               for codes, kernel in kernels]
     routes = [(sel, kernel) for sel, kernel in routes if sel.size]
@@ -709,21 +734,24 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
     is never read.  Refraction multiplies ``eta^2`` by the squared relative
     index crossed (``kind``: the hits' material kinds, if taken already;
     ``glass_run``: the glass rows' ``(start, stop)``, if stage 3 grouped them).
+    ``diffuse`` None: the paths carry no MIS fields (see :func:`camera_paths`),
+    and only ``eta_scale`` is kept up.
     """
     table = cs.materials
-    if kind is None:
-        kind = table.kind.take(surface.material_idx)
-    live.specular = ~diffuse
-    # float64 whatever the render's precision (lambertian_pdf's type): a batch's
-    # field must not change type with its refill history, or MIS arithmetic
-    # (and the image) would depend on the chunk size.  Every row's, specular
-    # or not: emission_weight reads it only after a diffuse vertex, and a
-    # where zeroing the others cost ~50 us of a 32 Ki path bounce (its
-    # random mask mispredicts), ~0.5 % of the bounce.
-    live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
+    if diffuse is not None:
+        live.specular = ~diffuse
+        # float64 whatever the render's precision (lambertian_pdf's type): a
+        # batch's field must not change type with its refill history, or MIS
+        # arithmetic (and the image) would depend on the chunk size.  Every
+        # row's, specular or not: emission_weight reads it only after a
+        # diffuse vertex, and a where zeroing the others cost ~50 us of a 32
+        # Ki path bounce (its random mask mispredicts), ~0.5 % of the bounce.
+        live.bsdf_pdf = lambertian_pdf(surface.normal, direction)
     if glass_run is not None:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
         start, stop = glass_run
+        if stop == start:  # no glass hits (or no glass in the scene)
+            return
         through = true_rows(dot(surface.normal[:, start:stop], direction[:, start:stop]) < 0.0)
         through += start
         if through.size:
@@ -731,6 +759,8 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
             eta = np.where(surface.front_face.take(through), index, 1.0 / index)  # n_transmitted / n_incident
             live.eta_scale[through] *= eta * eta
         return
+    if kind is None:
+        kind = table.kind.take(surface.material_idx)
     glass = true_rows(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
@@ -746,21 +776,51 @@ def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: i
     with probability ``q = min(max(throughput) * eta^2, 0.95)`` and divide
     their throughput by ``q``; the others end (``drawn``: the uniforms, if
     drawn already).  Returns ``absorbed``."""
+    if drawn is not None:
+        return _roulette_drawn(live, absorbed, start_depth, drawn)
     rows = true_rows(~absorbed & (live.depth + 1 >= start_depth))
     if rows.size == 0:
         return absorbed
-    survival = np.minimum(gather(live.throughput, rows).max(axis=0) * live.eta_scale.take(rows),
-                          ROULETTE_MAX_SURVIVAL)
-    if drawn is not None:
-        u = drawn.light_choice[1].take(rows)
-    else:
-        u = sampler.uniform(live.state.take(rows), light_choice_dimension(live.depth.take(rows)), 1)
-    survive = u < survival
+    # every row's survival (no gathers of the throughput), the rows' read
+    survival = _max_reduce(live.throughput, axis=0) * live.eta_scale
+    np.minimum(survival, ROULETTE_MAX_SURVIVAL, out=survival)
+    u = sampler.uniform(live.state.take(rows), light_choice_dimension(live.depth.take(rows)), 1)
+    survive = u < survival.take(rows)
     absorbed[rows] = ~survive  # every row was still alive: only the ended become True
-    keep = true_rows(survive)
-    kept = rows.take(keep)
-    scatter(live.throughput, kept, gather(live.throughput, kept) / survival.take(keep))
+    # the survivors' throughput divided by their survival over the whole
+    # batch, the others' by 1.0 (exact): no gather and scatter of the
+    # survivors' columns; in float64, rounded once to the throughput's type
+    # as the scatter of the quotient was
+    kept = rows.take(true_rows(survive))
+    divisor = np.ones(len(live))
+    divisor[kept] = survival.take(kept)
+    live.throughput /= divisor
     return absorbed
+
+
+def _roulette_drawn(live: PathBatch, absorbed, start_depth: int, drawn: DrawnUniforms) -> np.ndarray:
+    """:func:`russian_roulette` of a small batch whose uniforms are drawn:
+    every row's survival worked out and the survivors' throughput divided by
+    it over the whole batch (the others' by 1.0, exact), ~14 NumPy calls
+    where gathering the rows and scattering the survivors back took ~24, a
+    bounce's fixed cost in the tail.  Row by row the same operations: the
+    column's maximum times ``eta^2`` (in float64), capped, compared with the
+    uniform, and the throughput divided by it in float64 and rounded once to
+    its type (as the scatter of the quotient did)."""
+    applies = ~absorbed
+    applies &= live.depth >= start_depth - 1  # depth + 1 >= start_depth (small ints)
+    if not applies.any():
+        return absorbed
+    survival = _max_reduce(live.throughput, axis=0) * live.eta_scale
+    np.minimum(survival, ROULETTE_MAX_SURVIVAL, out=survival)
+    survive = drawn.light_choice[1] < survival
+    absorbed |= applies & ~survive  # every such row was still alive: only the ended become True
+    survive &= applies
+    live.throughput /= np.where(survive, survival, 1.0)
+    return absorbed
+
+
+_max_reduce = np.maximum.reduce
 
 
 def advance(live: PathBatch, surface, direction, absorbed, max_depth: int) -> PathBatch:
@@ -1007,8 +1067,9 @@ def scatter_in_media(cs: CompiledScene, sampler: Sampler, live: PathBatch, point
     u = sampler.pairs(live.state, bounce_dimension(live.depth), cs.dtype)
     direction = random_unit_vector(u[0], u[1])
     live.throughput *= albedo
-    live.bsdf_pdf = np.full(len(live), ISOTROPIC_PDF)
-    live.specular = np.zeros(len(live), dtype=bool)
+    if live.bsdf_pdf is not None:  # the MIS fields, where the paths carry them (see camera_paths)
+        live.bsdf_pdf = np.full(len(live), ISOTROPIC_PDF)
+        live.specular = np.zeros(len(live), dtype=bool)
     if settings.russian_roulette is not None:
         absorbed = russian_roulette(sampler, live, absorbed, settings.russian_roulette.depth)
     live.origin = point
