@@ -283,6 +283,24 @@ SMALL_STEP_LEVELS = 2
 # pass about half, the exact tests a third), each batch's root clip and float32 ray table
 # ~12 %.  (np.minimum.at slows ~10x on arrays whose dtype is not NumPy's own float64
 # instance, as unpickled ones are: a trap for such replays, not met in the renderer.)
+# Session 8, second round (W2's 90 intersect batches of a 160x90 10 spp render, recorded and
+# replayed through integ's and this tree's BVH._intersect in one process, batch by batch
+# alternating, CPU per pass ~105-110 ms; and whole 240x135 renders on one worker).  Kept: the
+# per-batch setup and end with the same arithmetic and fewer passes (the root clip in place,
+# the octant from uint8 sign bits, best_idx in int32, no copies of o and d when every ray
+# enters the root box (a fifth of the batches), the float32 ray table written in place, no
+# escaped_at_inf pass over the outsized answer): -2.6 % a pass; renders: intersection 240
+# against 246 ms, the whole render 366 against 372 (medians of 6).  Tried, not kept:
+# - a float32 bounding-sphere pre-filter of the outsized spheres (sphere_slots' test over
+#   (4, N), then brute force's exact test on the kept (ray, sphere) pairs, nearest per ray
+#   as SlabFilter's pairs): hits identical, but 29-31 against 20-22 ms for the 90 batches'
+#   brute force.  It keeps ~1.2 pairs a ray of 4 (the ground's line passes within its
+#   radius of ~90 % of them, the balls' 4-19 %), and its own float32 pass over (4, N) costs
+#   about as much as the float64 exact test it replaces, before the pairs' gathers;
+# - nearest_root's two divisions by a bool mask (comparison and division ~26 us on (4, 8192),
+#   in isolation): the mask made as float64 by the comparison (out=) and then divided by
+#   ~28 (the division itself is ~0.55 ns an element); an integer-bits form that sends a
+#   miss to inf, not NaN, is not the same numbers.
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
