@@ -283,6 +283,24 @@ SMALL_STEP_LEVELS = 2
 # pass about half, the exact tests a third), each batch's root clip and float32 ray table
 # ~12 %.  (np.minimum.at slows ~10x on arrays whose dtype is not NumPy's own float64
 # instance, as unpickled ones are: a trap for such replays, not met in the renderer.)
+# Session 8, second round (W2's 90 intersect batches of a 160x90 10 spp render, recorded and
+# replayed through integ's and this tree's BVH._intersect in one process, batch by batch
+# alternating, CPU per pass ~105-110 ms; and whole 240x135 renders on one worker).  Kept: the
+# per-batch setup and end with the same arithmetic and fewer passes (the root clip in place,
+# the octant from uint8 sign bits, best_idx in int32, no copies of o and d when every ray
+# enters the root box (a fifth of the batches), the float32 ray table written in place, no
+# escaped_at_inf pass over the outsized answer): -2.6 % a pass; renders: intersection 240
+# against 246 ms, the whole render 366 against 372 (medians of 6).  Tried, not kept:
+# - a float32 bounding-sphere pre-filter of the outsized spheres (sphere_slots' test over
+#   (4, N), then brute force's exact test on the kept (ray, sphere) pairs, nearest per ray
+#   as SlabFilter's pairs): hits identical, but 29-31 against 20-22 ms for the 90 batches'
+#   brute force.  It keeps ~1.2 pairs a ray of 4 (the ground's line passes within its
+#   radius of ~90 % of them, the balls' 4-19 %), and its own float32 pass over (4, N) costs
+#   about as much as the float64 exact test it replaces, before the pairs' gathers;
+# - nearest_root's two divisions by a bool mask (comparison and division ~26 us on (4, 8192),
+#   in isolation): the mask made as float64 by the comparison (out=) and then divided by
+#   ~28 (the division itself is ~0.55 ns an element); an integer-bits form that sends a
+#   miss to inf, not NaN, is not the same numbers.
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
@@ -690,22 +708,30 @@ class BVH:
         # passes over the rays, 6 % of a terrain's camera rays)
         # (one call of brute force's own: a batch is at most TRAVERSAL_BATCH rays against at most
         # MAX_OUTSIZED primitives, which its chunks of rays would only split into more calls)
-        first = self.outsized_set._intersect(origin, direction, t_max, time) if len(self.outsized) else None
+        # (first.t is t_max, not inf, where nothing was hit: the minimum below takes the limit
+        # there either way, and from_first reads only hits; escaped_at_inf's np.where over the
+        # batch was ~2 ms of W2's ~270 ms of intersection)
+        first = self.outsized_set._intersect(origin, direction, t_max, time, escaped_inf=False) \
+            if len(self.outsized) else None
         best_t = limit.copy() if first is None else np.minimum(first.t, limit)
         found = self._traverse(origin, direction, limit, best_t, time=time)  # lowers best_t to the tree's hits
-        none = len(self.primitives)  # sentinel above every index, so np.minimum keeps real ones
-        best_idx = np.full(n, none, dtype=np.int64)
+        # int32 throughout, what Hits holds (every scene-wide index fits): no final cast, and
+        # the sentinel's correction in int32 (~5 us a batch of 8,192 rays against ~10)
+        none = np.int32(len(self.primitives))  # sentinel above every index, so np.minimum keeps real ones
+        best_idx = np.full(n, none, dtype=np.int32)
         if first is not None:
             from_first = ((first.primitive_idx >= 0) & (first.t == best_t)).nonzero()[0]
             best_idx[from_first] = self.outsized.take(first.primitive_idx.take(from_first))
         if found:
             ray, t, prim = (np.concatenate(a) for a in zip(*found))
             winner = (t == best_t.take(ray)).nonzero()[0]
-            # ties go to the lowest primitive index, as in brute force
-            np.minimum.at(best_idx, ray.take(winner), prim.take(winner))
+            # ties go to the lowest primitive index, as in brute force (values cast to the
+            # target's int32 first: ufunc.at's fast path needs matching types)
+            np.minimum.at(best_idx, ray.take(winner), prim.take(winner).astype(np.int32))
         missed = best_idx == none
-        best_idx -= missed * (none + 1)  # the sentinel becomes -1
-        return Hits(escaped_at_inf(best_t, ~missed, t_max), best_idx.astype(np.int32))
+        best_idx -= np.multiply(missed, none + np.int32(1), dtype=np.int32)  # the sentinel becomes -1
+        return Hits(escaped_at_inf(best_t, ~missed, t_max) if np.ndim(t_max) or t_max != np.inf else best_t,
+                    best_idx)
 
     def _occluded(self, origin, direction, t_max, time=None) -> np.ndarray:
         n = origin.shape[1]
@@ -731,26 +757,43 @@ class BVH:
         if self.empty:
             return []
         f32 = np.float32
+        # the root clip with the same arithmetic in place: (3, N) temporaries of 8,192 rays
+        # leave cache, and each fresh one is another pass over memory
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / direction
-            t0 = (self.root_box[:3] - origin) * inv
-            t1 = (self.root_box[3:] - origin) * inv
-        lo, hi = np.fmin(t0, t1), np.fmax(t0, t1)
-        near = np.fmax(np.fmax(lo[0], lo[1]), lo[2])
-        far = np.fmin(np.fmin(hi[0], hi[1]), hi[2])
-        ray_ids = ((near <= far) & (far >= T_MIN) & (near <= best_t)).nonzero()[0]
+            t0 = np.subtract(self.root_box[:3], origin)
+            t0 *= inv
+            t1 = np.subtract(self.root_box[3:], origin)
+            t1 *= inv
+        hi = np.fmax(t0, t1)
+        lo = np.fmin(t0, t1, out=t0)
+        near, far = lo[0], hi[0]
+        np.fmax(near, lo[1], out=near)
+        np.fmax(near, lo[2], out=near)
+        np.fmin(far, hi[1], out=far)
+        np.fmin(far, hi[2], out=far)
+        enters = near <= far
+        enters &= far >= T_MIN
+        enters &= near <= best_t
+        ray_ids = enters.nonzero()[0]
         if ray_ids.size == 0:
             return []
         # from here on per-ray arrays are indexed by position in ray_ids
-        o, d = gather(origin, ray_ids), gather(direction, ray_ids)
+        # (every ray enters in a fifth of W2's batches: no copies then; o and d are only read)
+        o, d = (origin, direction) if ray_ids.size == origin.shape[1] else \
+            (gather(origin, ray_ids), gather(direction, ray_ids))
         nearest, limit = best_t.take(ray_ids), limit.take(ray_ids)
         time = None if time is None else time.take(ray_ids)
         # The traversal's ray starts where it enters the root box, so its t
         # is the true t minus `shift`; no box behind that point holds a hit,
         # which is why box entries are clamped at 0 below.
         shift = np.maximum(near.take(ray_ids), 0.0)
+        rays = np.empty((6, ray_ids.size), dtype=f32)
+        start = d * shift
+        start += o  # o + shift d (addition commutes exactly)
         with np.errstate(over="ignore"):  # 1/d beyond float32 becomes inf, which the slab test handles
-            rays = np.concatenate(((o + shift * d).astype(f32), gather(inv, ray_ids).astype(f32)))
+            np.copyto(rays[:3], start, casting="same_kind")
+            np.copyto(rays[3:], inv if ray_ids.size == origin.shape[1] else gather(inv, ray_ids), casting="same_kind")
         # the best hit so far in the traversal's frame (nearest >= shift: rays whose root box
         # entry lies beyond their best hit were left out above)
         to_beat = float32_up_nonnegative(nearest - shift)
@@ -890,7 +933,7 @@ class BVH:
         # rays'), rounded down; it matters for rays leaving a surface (shift 0), which start
         # inside the boxes of the primitives around their origin: on the 1M terrain it drops
         # a tenth of their exact tests.
-        floor = max(f32(0), float32_down(T_MIN - shift.max()))
+        floor = max(f32(0), np.nextafter(f32(T_MIN - shift.max()), f32(-np.inf)))  # float32_down, on a scalar
         if self.node_major:
             def gather_columns(table, node):
                 """``table``'s rows ``node`` as columns: (R, P) from a node-major (K, R) table."""
@@ -924,9 +967,17 @@ class BVH:
         if self.count[0] > 0:  # the whole tree is one leaf, and these rays entered its box
             test_slots(ray, np.zeros(ray.size, dtype=np.int64))
             ray = ray[:0]
-        octant = np.signbit(d[0]) | (np.signbit(d[1]) << 1) | (np.signbit(d[2]) << 2) if self.octants > 1 else 0
-        # the root's column in each ray's octant (none if the root was a leaf)
-        node = (octant * k if self.octants > 1 else np.zeros(ray_ids.size, dtype=np.int64))[:ray.size]
+        # the root's column in each ray's octant (none if the root was a leaf): the octant
+        # 4 sz + 2 sy + sx from the sign bits in uint8, one multiply to int64 (three ors of
+        # bools shifted to int64 took ~17 us of a batch's 7,000 rays, this ~9)
+        if self.octants > 1:
+            sign = np.signbit(d).view(np.uint8)
+            octant = sign[2] * np.uint8(4)
+            octant += sign[1] * np.uint8(2)
+            octant += sign[0]
+            node = np.multiply(octant, k, dtype=np.int64)[:ray.size]
+        else:
+            node = np.zeros(ray.size, dtype=np.int64)
 
         def walk(ray, node, depth, stop=None, rays_walking=ray_ids.size):
             """Breadth-first over (ray, interior node) pairs at ``depth``, testing leaves as

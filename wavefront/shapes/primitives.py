@@ -231,7 +231,7 @@ class Primitives:
         reach = min((f.reach for f in self.filters if f is not None), default=0.0)
         return bool(reach) and origin.shape[1] > 0 and float(np.abs(origin).max()) <= reach
 
-    def _intersect(self, origin, direction, t_max=np.inf, time=None) -> Hits:
+    def _intersect(self, origin, direction, t_max=np.inf, time=None, escaped_inf: bool = True) -> Hits:
         """Nearest hit with ``T_MIN < t < t_max`` for every ray, by brute force.
 
         The nearest primitive of a block is found with a ``min`` reduction and
@@ -246,6 +246,10 @@ class Primitives:
         t_max : float or ndarray of shape (N,)
         time : None or ndarray of shape (N,)
             Each ray's time in [0, 1), for moving spheres.
+        escaped_inf : bool
+            False leaves ``t_max`` (not ``inf``) where nothing was hit, saving a
+            pass for callers that read ``t`` only where ``primitive_idx >= 0``
+            (the BVH's outsized primitives).
         """
         n = origin.shape[1]
         # the same numbers as broadcasting t_max (np.full casts a scalar as
@@ -305,7 +309,7 @@ class Primitives:
             else:
                 np.add(np.minimum.reduce(rank, axis=0), offset + start, out=best_idx, where=closer, dtype=np.int32)
             best_t = np.fmin(best_t, t_block)
-        if not (np.ndim(t_max) == 0 and t_max == np.inf):  # else escaped_at_inf returns best_t as it is
+        if escaped_inf and not (np.ndim(t_max) == 0 and t_max == np.inf):  # else escaped_at_inf returns best_t
             best_t = escaped_at_inf(best_t, best_idx >= 0, t_max)
         return Hits(best_t, best_idx)
 
