@@ -80,9 +80,11 @@ def heaviest_per_sample(slot, keep_r, keep_t, mirror_weight, refract_weight):
     next_slot = np.concatenate((slot[keep_r], slot[keep_t]))
     if next_slot.size <= MAX_SAMPLE_RAYS:
         return keep_r, keep_t
-    counts = np.unique(next_slot, return_counts=True)[1]
+    # rays a sample (a chunk's slots are consecutive: a count, not a sort, every generation)
+    counts = np.bincount(next_slot - next_slot.min())
     if counts.max() <= MAX_SAMPLE_RAYS:
         return keep_r, keep_t
+    counts = counts[counts > 0]  # the samples present, in slot order, as the sort below groups them
     weight = np.concatenate((mirror_weight[:, keep_r].max(axis=0), refract_weight[:, keep_t].max(axis=0)))
     order = np.lexsort((np.arange(next_slot.size), -weight, next_slot))  # by sample, heaviest first
     group_start = np.repeat(np.cumsum(counts) - counts, counts)  # each sorted row's sample's first position
