@@ -131,8 +131,11 @@ def test_killed_checkpointed_render_resumes_to_the_identical_image(tmp_path):
     assert r.returncode == 0, r.stderr
 
     ck, out = tmp_path / "ck.npz", tmp_path / "resumed.npy"
+    # small tasks (a small wavefront) so the first checkpoint comes early: a task is
+    # merged only once its last path has ended, when the wavefront has run on well
+    # into the tasks after it (the room's paths often last 50 bounces)
     proc = start(SLOW, "-o", out, "--spp", 64, "--checkpoint", ck, "--checkpoint-interval", "0.01",
-                 "--workers", 1)
+                 "--workers", 1, "--chunk-size", 4096)
     wait_for(ck)
     time.sleep(0.3)
     proc.kill()  # SIGKILL: nothing gets to clean up
@@ -291,7 +294,7 @@ def test_workers_that_keep_dying_end_the_render_with_one_message(monkeypatch):
     render_module = importlib.import_module("wavefront.render")  # the module (wavefront.render is the function)
     if "fork" not in __import__("multiprocessing").get_all_start_methods():
         pytest.skip("the patched task reaches the workers by fork")
-    monkeypatch.setattr(render_module, "run_task", lambda task: os._exit(3))
+    monkeypatch.setattr(render_module, "run_stream", lambda task, receive, deliver, ask=None: os._exit(3))
     scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=64,
                                                                               samples_per_pixel=8)
     with pytest.raises(render_module.RenderError, match=r"worker processes died \(exit status 3\)"):
@@ -308,15 +311,19 @@ def test_a_worker_killed_on_the_renders_last_task_costs_only_that_task(tmp_path,
     scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=48, height=32, samples_per_pixel=4)
     expected = render_scene(scene, workers=1, chunk_size=256).image
     last_unit = len(render_module.UnitPlan(48, 32, 4)) - 1
-    marker, real = tmp_path / "killed", render_module.run_task
+    marker, real = tmp_path / "killed", render_module.run_stream
 
-    def dies_once_on_the_last_task(task):
-        if task[-1].index == last_unit and not marker.exists():
-            marker.touch()
-            os._exit(9)
-        return real(task)
+    def dies_once_on_the_last_task(task, receive, deliver, ask=None):
+        """The worker's tasks, the first and those its wavefront runs on into, checked as they come."""
+        def check(units):
+            if units is not None and units[-1].index == last_unit and not marker.exists():
+                marker.touch()
+                os._exit(9)
+            return units
 
-    monkeypatch.setattr(render_module, "run_task", dies_once_on_the_last_task)
+        return real(check(task), lambda: check(receive()), deliver, ask)
+
+    monkeypatch.setattr(render_module, "run_stream", dies_once_on_the_last_task)
     result = render_scene(scene, workers=2, chunk_size=256)
     assert marker.exists() and np.array_equal(result.image, expected)
 
@@ -348,7 +355,7 @@ def test_a_worker_that_exits_after_its_last_result_is_not_a_death(monkeypatch):
     deaths, real_bury = [], render_module._Workers.bury
 
     def bury(self, worker, replace):
-        deaths.append(worker.task)
+        deaths.append(list(worker.tasks))
         return real_bury(self, worker, replace)
 
     monkeypatch.setattr(render_module._Workers, "bury", bury)
@@ -368,10 +375,10 @@ def test_a_task_error_in_a_worker_is_raised_in_the_parent(monkeypatch):
     if "fork" not in __import__("multiprocessing").get_all_start_methods():
         pytest.skip("the patched task reaches the workers by fork")
 
-    def failing(task):
+    def failing(task, receive, deliver, ask=None):
         raise ValueError(f"task of {len(task)} units failed")
 
-    monkeypatch.setattr(render_module, "run_task", failing)
+    monkeypatch.setattr(render_module, "run_stream", failing)
     scene = load_scene(SCENES / "three_spheres.yaml").with_overrides(width=64, height=64,
                                                                               samples_per_pixel=8)
     with pytest.raises(ValueError, match="units failed") as raised:

@@ -30,12 +30,12 @@ from functools import cached_property
 import numpy as np
 
 from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
-from .integrators import TRACERS
+from .integrators import STREAMING, TRACERS
 from .memory import (  # noqa: F401 (MemoryBudgetError and the measures are part of this module's API)
     MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
     release_free_memory, reserve_heap)
 from .output import OutputError, check_output_path
-from .path import TraceStats
+from .path import HELD_TASKS, TaskStream, TraceStats
 from .sampling import scene_key
 from .scene import CompiledScene, Scene
 from .units import Job, Unit, UnitPlan
@@ -57,10 +57,22 @@ TASK_WAVEFRONTS = 4  # a task holds about this many wavefronts' samples
 # rendering ~10k samples of a small scene on one core (128x128 at 1 spp ran
 # no faster on two workers than inline).
 SMALLEST_SHARED_TASK = 1 << 14
-TASKS_IN_FLIGHT = 2  # out per worker: running, or finished and waiting for an earlier one to be merged
+# Out per worker: running, or finished and waiting for an earlier one to be
+# merged (a Dask worker runs one task at a time).
+TASKS_IN_FLIGHT = 2
+# Out per pool or inline worker, which streams (see path.hand_over): in its
+# wavefront (up to path.HELD_TASKS), or finished and waiting to be merged.
+STREAM_TASKS_IN_FLIGHT = HELD_TASKS + 1
+# A worker's request for its next task, sent once its wavefront has taken every
+# sample of the tasks it holds (see _Stream.next_job).
+MORE = "more"
 # A finished task's pixel sums held by the parent until merged: at worst one
 # sample per pixel, so as many float64 RGB sums as samples.
 RESULT_BYTES_PER_SAMPLE = 3 * 8
+# A streaming worker holds up to HELD_TASKS tasks' per-sample radiance (float64
+# RGB), and taking the next copies what it holds (2 HELD_TASKS - 1 tasks' worth
+# at once), against the one task BYTES_PER_PATH counts.
+STREAM_BYTES_PER_PATH = (2 * HELD_TASKS - 2) * TASK_WAVEFRONTS * 3 * 8
 
 
 @dataclass
@@ -147,18 +159,29 @@ class MemoryPlan:
     lasting: bool = False
 
     @property
+    def path_bytes(self) -> int:
+        """A path in flight (a local Dask cluster's workers run one task at a time; others stream)."""
+        return BYTES_PER_PATH + (0 if self.lasting else STREAM_BYTES_PER_PATH)
+
+    @property
+    def result_bytes_per_path(self) -> int:
+        """Finished tasks' sums out per worker, per path of its wavefront."""
+        window = TASKS_IN_FLIGHT if self.lasting else STREAM_TASKS_IN_FLIGHT
+        return window * TASK_WAVEFRONTS * RESULT_BYTES_PER_SAMPLE
+
+    @property
     def render_peak(self) -> int:
-        paths = self.capacity * BYTES_PER_PATH
+        paths = self.capacity * self.path_bytes
         if self.workers == 1 and not self.lasting:  # inline: the parent renders
             return self.base + self.film + paths
-        results = self.workers * TASKS_IN_FLIGHT * TASK_WAVEFRONTS * self.capacity * RESULT_BYTES_PER_SAMPLE
+        results = self.workers * self.capacity * self.result_bytes_per_path
         return self.base + self.film + results + self.workers * (self.per_worker + paths)
 
     @property
     def peak(self) -> int:
         writing = self.base + self.film + self.output
         if self.lasting:
-            writing += self.workers * (self.per_worker + self.capacity * BYTES_PER_PATH)
+            writing += self.workers * (self.per_worker + self.capacity * self.path_bytes)
         return max(self.render_peak, writing)
 
 
@@ -183,8 +206,7 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
         plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output, lasting)
         if chunk_size is None:
             spare = memory - plan.peak
-            per_path = w * BYTES_PER_PATH + (w * TASKS_IN_FLIGHT * TASK_WAVEFRONTS * RESULT_BYTES_PER_SAMPLE
-                                             if w > 1 else 0)
+            per_path = w * plan.path_bytes + (w * plan.result_bytes_per_path if w > 1 or lasting else 0)
             capacity = min(MAX_CAPACITY, MIN_CAPACITY + max(0, spare) // per_path)
             plan = MemoryPlan(w, capacity, base, film, per_worker, output, lasting)
             # growing the wavefront raises only render_peak; shrink if the estimate rounds over
@@ -208,7 +230,7 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
     if smallest.peak == smallest.base + smallest.film + output:
         parts.append(f"writing the image {_mib(output)}")
     else:
-        parts.append(f"{smallest.capacity} paths in flight {_mib(smallest.capacity * BYTES_PER_PATH)}")
+        parts.append(f"{smallest.capacity} paths in flight {_mib(smallest.capacity * smallest.path_bytes)}")
     raise MemoryBudgetError(f"the render needs about {_mib(smallest.peak)} ({', '.join(parts)}), "
                             f"more than the memory budget of {_mib(memory)}")
 
@@ -376,6 +398,53 @@ def run_task(units: list[Unit]):
     """:func:`execute` with the scene this process was initialised with."""
     w = _WORKER[0]
     return execute(w.compiled, w.key, w.capacity, units, w.should_stop)
+
+
+class _Stream(TaskStream):
+    """Tasks from ``receive`` (units, or None when none is waiting), results
+    as :func:`execute` makes them to ``deliver``.  ``ask``, if given, is
+    called once each time the wavefront wants a task while its last paths
+    run and none is waiting (an idle trace ends, and its worker waits)."""
+
+    def __init__(self, scene: Scene, receive, deliver, ask=None):
+        self.scene, self.receive, self.deliver, self.ask = scene, receive, deliver, ask
+        self.asked = False
+
+    def job(self, units: list[Unit]) -> Job:
+        return Job(units, self.scene.width, self.scene.render.samples_per_pixel)
+
+    def next_job(self, idle: bool) -> Job | None:
+        units = self.receive()
+        if units is None:
+            if self.ask is not None and not self.asked and not idle:
+                self.ask()
+                self.asked = True
+            return None
+        self.asked = False
+        return self.job(units)
+
+    def finished(self, job: Job, radiance: np.ndarray, stats: TraceStats) -> None:
+        self.deliver((job.reduce(radiance), stats, (os.getpid(), peak_rss())))
+
+
+def run_stream(units: list[Unit], receive, deliver, ask=None) -> None:
+    """Render task ``units`` and the tasks ``receive()`` gives while it runs,
+    in one wavefront (``receive`` returns None when no task is waiting: the
+    trace ends once its wavefront is empty), handing each task's result, as
+    :func:`run_task` returns it, to ``deliver``, in order; ``ask()`` (if
+    given) is called when the wavefront wants a task and none is waiting.
+    An integrator that does not stream runs ``units`` alone."""
+    w = _WORKER[0]
+    scene = w.compiled.scene
+    if scene.render.integrator not in STREAMING:
+        deliver(run_task(units))
+        return
+    stream = _Stream(scene, receive, deliver, ask)
+    with np.errstate(over="ignore", invalid="ignore"):  # as in execute
+        TRACERS[scene.render.integrator](w.compiled, stream.job(units), w.key, w.capacity, TraceStats(),
+                                         w.should_stop, stream=stream)
+    if w.should_stop is not None and w.should_stop():
+        raise RenderInterrupted  # the tasks not yet delivered are incomplete
 
 
 MAX_WORKERS = 1024  # far past any machine's cores; bounds the planning too
@@ -596,37 +665,60 @@ def _exit_cause(code: int) -> str:
 def _run_inline(cs, capacity, tasks, merge, stopped) -> None:
     saved = list(_WORKER)
     _WORKER[:] = [_Worker(cs, scene_key(cs.scene.render.seed), capacity, stopped)]
+    tasks = iter(tasks)
     try:
         for task in tasks:
             if stopped():
                 raise RenderInterrupted
-            merge(run_task(task))
+            run_stream(task, lambda: next(tasks, None), merge)
     finally:
         _WORKER[:] = saved
 
 
-def _serve(conn, scene, capacity, parent, compiled, key) -> None:
-    """A worker process: run each task the parent sends, send back its result.
+class _Inbox:
+    """A worker's end of its pipe: the tasks the parent sends, each
+    ``(units, last)``, until None or a task sent as the last."""
 
-    An error is sent back too, with its traceback, and raised in the parent.
-    None from the parent ends the worker, and so does a task sent as its last
-    (the render's last, or any after which the plan is empty): the worker
-    exits once its result is sent, while the parent merges it.
+    def __init__(self, conn):
+        self.conn, self.ended = conn, False
+
+    def task(self, wait: bool = True) -> list[Unit] | None:
+        """The next task's units; None once the parent has ended the
+        stream, or (``wait=False``) when no task is waiting yet."""
+        if self.ended or (not wait and not self.conn.poll()):
+            return None
+        message = self.conn.recv()
+        if message is None:
+            self.ended = True
+            return None
+        units, self.ended = message
+        return units
+
+
+def _serve(conn, scene, capacity, parent, compiled, key) -> None:
+    """A worker process: run the tasks the parent sends, send back each result.
+
+    Once the wavefront has taken every sample of its task the worker asks for
+    the next (``MORE``), and runs on into it while the last paths of the
+    first are still in flight (:func:`run_stream`); each result goes back as
+    soon as its task's paths have ended.  An error is sent back too,
+    with its traceback, and raised in the parent.  None from the parent ends
+    the worker, and so does a task sent as its last (the render's last, or
+    any after which the plan is empty): the worker exits once its results
+    are sent, while the parent merges them.
     """
     _init_worker(scene, capacity, parent, compiled, key)
-    while (message := conn.recv()) is not None:
-        task, last = message
+    inbox = _Inbox(conn)
+    while (task := inbox.task()) is not None:
         try:
-            reply = (True, run_task(task))
-        except Exception as e:  # noqa: BLE001 (any error of the task is the parent's to report)
-            reply = (False, (e, traceback_of(e)))
-        try:
-            conn.send(reply)
-        except Exception as e:  # noqa: BLE001 (an error, or a result, that does not pickle)
-            where = reply[1][1] if not reply[0] else traceback_of(e)
-            conn.send((False, (RuntimeError(f"{type(e).__name__}: {first_line(e)}"), where)))
-        if last:
-            break
+            run_stream(task, lambda: inbox.task(wait=False), lambda result: conn.send((True, result)),
+                       lambda: conn.send((MORE, None)))
+        except Exception as e:  # noqa: BLE001 (any error of a task, or a result that does not pickle)
+            where = traceback_of(e)
+            try:
+                conn.send((False, (e, where)))
+            except Exception:  # noqa: BLE001 (an error that does not pickle)
+                conn.send((False, (RuntimeError(f"{type(e).__name__}: {first_line(e)}"), where)))
 
 
 def traceback_of(error: BaseException) -> str:
@@ -648,15 +740,15 @@ class _WorkerProcess:
 
     process: object  # multiprocessing.Process
     conn: object  # the parent's end of its pipe
-    task: int | None = None  # the number of the task it is running
+    tasks: list[int] = field(default_factory=list)  # the numbers of the tasks given it and not done, in order
     # Told it has no more work (None, or its task sent as the last): it exits
     # by itself, and its exit is not a death.
     retired: bool = False
 
 
 class _Workers:
-    """Worker processes, each with a pipe of its own: the parent sends one
-    task at a time and reads back its result.
+    """Worker processes, each with a pipe of its own: the parent sends tasks
+    (one running and the next waiting) and reads back their results.
 
     In place of ``multiprocessing.Pool``, whose start (three handler threads),
     result path and end cost ~10 ms of a 0.1 s render, and which needed its
@@ -761,66 +853,77 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
         # given out when the plan is empty is sent as its worker's last.
         plan = enumerate(tasks)
         upcoming = next(plan, None)  # the plan's next (number, task); None once all are given out
-        window = TASKS_IN_FLIGHT * workers
+        window = STREAM_TASKS_IN_FLIGHT * workers
         lost = []  # (number, task) of dead workers
         task_of, finished = {}, {}  # number -> task given out; number -> result not yet merged
         merged = issued = 0  # tasks merged; tasks taken from the plan
 
-        def give(worker: _WorkerProcess) -> None:
+        def give(worker: _WorkerProcess) -> bool:
+            """Send ``worker`` a task (or, idle with nothing left, its end); whether one was sent."""
             nonlocal issued, upcoming
             if lost:
                 number, task = lost.pop(0)
             elif upcoming is None:
-                pool.retire(worker)
-                return
+                if not worker.tasks:
+                    pool.retire(worker)
+                return False
             elif issued - merged >= window:
-                return
+                return False
             else:
                 (number, task), issued = upcoming, issued + 1
                 upcoming = next(plan, None)
-            task_of[number], worker.task = task, number
+            task_of[number] = task
+            worker.tasks.append(number)
             worker.retired = upcoming is None and not lost
             try:
                 worker.conn.send((task, worker.retired))
             except OSError:
-                pass  # it has just died: its sentinel says so, and the task goes back to `lost`
+                pass  # it has just died: its sentinel says so, and its tasks go back to `lost`
+            return True
 
         while True:
             for worker in pool.all:
-                if worker.task is None and not worker.retired:
+                if not worker.tasks and not worker.retired:
                     give(worker)
             if not task_of:
                 break
-            busy = [w.conn for w in pool.all if w.task is not None]
+            busy = [w.conn for w in pool.all if w.tasks]
             ready = set(wait(busy + [w.process.sentinel for w in pool.all], POLL_SECONDS))
             if stopped():
                 raise RenderInterrupted
             for worker in list(pool.all):
                 exited = worker.process.sentinel in ready or not worker.process.is_alive()
-                # A worker sent its last task sends its result and exits, maybe
-                # after `ready` was taken: its result is read before it is
-                # judged (at a dead worker's end of file, poll is True too)
-                if worker.task is not None and (worker.conn in ready or (exited and worker.conn.poll())):
+                # Results come back in the order the tasks were given; every one
+                # that has arrived is read.  A worker sent its last task sends its
+                # results and exits, maybe after `ready` was taken: they are read
+                # before it is judged (at a dead worker's end of file, poll is True too)
+                while worker.tasks and (worker.conn in ready or exited) and worker.conn.poll():
                     try:
                         ok, value = worker.conn.recv()
                     except (EOFError, OSError):  # it died sending: its sentinel says so
-                        ok, value = None, None
-                    if ok is False:
+                        break
+                    if ok == MORE:
+                        # Its wavefront has taken every sample it has: the next task now, so
+                        # it runs on into it instead of draining.  Not sooner: a task given
+                        # is a task no other worker can take, and the plan's last, short
+                        # tasks must go to whichever worker is free first.
+                        if len(worker.tasks) < HELD_TASKS and not worker.retired:
+                            give(worker)
+                        continue
+                    if not ok:
                         error, where = value
                         raise error from WorkerTraceback(where)  # the task's own error
-                    if ok:
-                        finished[worker.task] = value
-                        del task_of[worker.task]
-                        worker.task = None
-                        if not worker.retired:
-                            give(worker)  # at once: it works while the parent merges
+                    number = worker.tasks.pop(0)
+                    finished[number] = value
+                    del task_of[number]
+                    if not worker.tasks and not worker.retired:
+                        give(worker)  # at once: it works while the parent merges
                 if exited:
-                    if worker.retired and worker.task is None:
+                    if worker.retired and not worker.tasks:
                         pool.reap(worker)  # it exited as told
                         continue
-                    if worker.task is not None:
-                        lost.append((worker.task, task_of[worker.task]))
-                        lost.sort(key=lambda item: item[0])
+                    lost.extend((number, task_of[number]) for number in worker.tasks)
+                    lost.sort(key=lambda item: item[0])
                     pool.bury(worker, replace=bool(lost) or upcoming is not None)
             while merged in finished:
                 merge(finished.pop(merged))
