@@ -255,11 +255,13 @@ def plan_tasks(plan: UnitPlan, capacity: int, workers: int = 1, first_unit: int 
     128x128 box) still runs on every worker instead of one task in one
     process, down to ``SMALLEST_SHARED_TASK`` samples a task.  When every
     worker's share fits in one task (TASK_WAVEFRONTS wavefronts), each worker
-    gets exactly one: every task ends in a tail of a few deep paths costing
+    gets exactly one: a task ended in a tail of a few deep paths costing
     ~0.5 ms a bounce however few they are (~20 ms on cornell_spheres), and
     two tasks a worker were ~5 % slower than one at 128x128, 16 spp
-    (interleaved runs).  Grouping never changes the image: units are merged
-    in order.  Yields lists of units.
+    (interleaved runs; measured before workers streamed one task into the
+    next, path.hand_over, which leaves only the last task's tail).  Grouping
+    never changes the image: units are merged in order.  Yields lists of
+    units.
     """
     remaining = plan.total_samples - plan.samples_before(first_unit)
     share = -(-remaining // workers)
