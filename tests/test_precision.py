@@ -16,8 +16,8 @@ import pytest
 
 import wavefront.shapes.sphere as sphere_module
 from wavefront import Sphere, load_scene
-from wavefront.geometry import (FLOAT32_EXTENT, T_MIN, anchored_roots, first_root, nearest_root,
-                                sphere_roots)
+from wavefront.geometry import (FLOAT32_EXTENT, T_MIN, anchored_roots, first_root, key_root, nearest_root,
+                                nearest_root_key, sphere_roots)
 from wavefront.scene import precision_of
 from wavefront.shapes import SphereSet
 from wavefront.vecmath import normalize
@@ -150,6 +150,42 @@ def test_first_root_is_nearest_root_on_haines_roots():
     s[::7] = np.nan
     np.testing.assert_array_equal(np.nan_to_num(first_root(h + s, h - s, T_MIN), nan=np.inf),
                                   np.nan_to_num(nearest_root(h, s), nan=np.inf))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_root_keys_are_nearest_root_bit_for_bit(dtype):
+    """Keyed roots give nearest_root's root wherever it is a hit (inf where it
+    is none), and order as the roots, across T_MIN, zero, negatives and NaN."""
+    rng = np.random.default_rng(3)
+    t_min = dtype(T_MIN)
+    around = np.concatenate([np.nextafter(t_min, dtype(np.inf)) * np.arange(-3, 4, dtype=dtype),
+                             [t_min, np.nextafter(t_min, dtype(0)), np.nextafter(t_min, dtype(1)), 0.0, -0.0]])
+    h = np.concatenate([rng.uniform(-3, 3, 2000), around, around, rng.uniform(-1e-2, 1e-2, 500)]).astype(dtype)
+    s = np.abs(np.concatenate([rng.normal(size=2000), around * 0, around, rng.uniform(0, 1e-2, 500)])).astype(dtype)
+    s[::7] = np.nan
+    s[1::11] = np.inf  # a root at -inf and one at inf
+    with np.errstate(invalid="ignore"):
+        expected = nearest_root(h.copy(), s)
+        keys = nearest_root_key(h, s)
+    hit = expected < np.inf
+    got = key_root(keys)
+    assert got.dtype == dtype
+    np.testing.assert_array_equal(got[hit].view(keys.dtype), expected[hit].view(keys.dtype))
+    assert np.all(got[~hit] == np.inf)
+    # the least key of any two is the nearer hit
+    order = np.argsort(keys, kind="stable")
+    assert np.all(np.diff(got[order][hit[order]]) >= 0)
+    assert hit.sum() > 1000 and (~hit).sum() > 500
+
+
+def test_root_keys_negative_control():
+    """A key made with T_MIN's own bits, not the next float's, accepts a root at T_MIN: the test above sees it."""
+    t_min = np.float32(T_MIN)
+    h, s = np.array([t_min], dtype=np.float32), np.zeros(1, dtype=np.float32)
+    assert nearest_root(h.copy(), s)[0] == np.inf
+    wrong = (h - s).view(np.uint32) - t_min.view(np.uint32)  # T_MIN itself keyed as the first hit
+    assert wrong[0] < np.float32(np.inf).view(np.uint32) - t_min.view(np.uint32)
+    assert key_root(nearest_root_key(h, s))[0] == np.inf
 
 
 def _wrong_power(center, radius_squared, near_point, far_point, origin, direction):

@@ -29,6 +29,7 @@ from wavefront import (Camera, Emissive, Lambertian, Quad, RenderSettings, Scene
 from wavefront.materials import scatter_lambertian
 from wavefront.sampling import (LIGHT_PAIRS, MEDIUM_PAIRS, SAMPLERS, TIME_PAIR, Sampler, _hash32, _net_table,
                                 _owen_mix, _reverse_bits_int, _sobol_dimension_1_columns, _to_unit, bounce_dimension,
+                                cos_sin_2pi,
                                 light_choice_dimension, light_point_dimension, mix64,
                                 owen_premix, owen_scramble_reversed, pair_seeds, path_state, pixel_seeds,
                                 random_in_unit_disk, random_unit_vector, reverse_bits, scene_key, shuffle_index,
@@ -664,3 +665,19 @@ def test_negative_control_biased_sampler_is_rejected(monkeypatch):
                                                                                              dtype) ** 1.1)
     bad, z, worst = differ(mean_image(with_sampler(quad_lit(), "sobol"), range(300, 304)), reference)
     assert bad, f"z = {z:.2f}, largest block |z| = {worst:.2f}"
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_cos_sin_2pi_sign_is_copysign_bit_for_bit(dtype):
+    """The sine's sign, copied by bits, is np.copysign's (at u = 0.5 and around it too)."""
+    rng = np.random.default_rng(4)
+    half = dtype(0.5)
+    u = np.concatenate([rng.random(4096), [0.0, 0.25, half, np.nextafter(half, dtype(0)), np.nextafter(half, dtype(1)),
+                                           0.75, np.nextafter(dtype(1), dtype(0))]]).astype(dtype)
+    c, s = cos_sin_2pi(u)
+    root = np.sqrt(np.maximum(0.0, 1.0 - c * c))
+    expected = np.copysign(root, 0.5 - u)
+    assert s.dtype == c.dtype == dtype
+    np.testing.assert_array_equal(s.view(np.uint32 if dtype is np.float32 else np.uint64),
+                                  expected.view(np.uint32 if dtype is np.float32 else np.uint64))
+    assert (s < 0).any() and (s > 0).any()

@@ -682,15 +682,26 @@ def _cos_2pi(u: np.ndarray) -> np.ndarray:
 def cos_sin_2pi(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``cos(2 pi u)`` and ``sin(2 pi u)``: the cosine from the library (in
     float32, see :func:`_cos_2pi`), the sine as a signed square root, so one
-    transcendental instead of two (sin >= 0 exactly when u <= 1/2; copysign,
-    not where: the sign is random, and a branchy where mispredicts on every
-    other element).  The sine's steps run in place in one buffer."""
+    transcendental instead of two (sin >= 0 exactly when u <= 1/2).  The
+    sign is copied by bits, not with a where (the sign is random, and a
+    branchy where mispredicts on every other element) nor ``np.copysign``
+    (a scalar loop: 12.3 us on 20 Ki float32 values against 6.4 for the
+    three integer passes; the same bits, the root being >= 0).  The sine's
+    steps run in place in one buffer."""
     c = _cos_2pi(u)
     s = np.multiply(c, c)
     np.subtract(1.0, s, out=s)
     np.maximum(0.0, s, out=s)
     np.sqrt(s, out=s)
-    return c, np.copysign(s, 0.5 - u, out=s)
+    bits, sign_bit = _SIGN_BITS[s.dtype.type]
+    sign = np.subtract(0.5, u, dtype=s.dtype).view(bits)
+    sign &= sign_bit
+    sign |= s.view(bits)
+    return c, sign.view(s.dtype)
+
+
+# each float type's unsigned twin and its sign bit (cos_sin_2pi's copysign)
+_SIGN_BITS = {np.float32: (np.uint32, np.uint32(1 << 31)), np.float64: (np.uint64, np.uint64(1 << 63))}
 
 
 def random_unit_vector(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:

@@ -105,6 +105,12 @@ class ShapeKind:
         primitives (``time``: the rays' times, for kinds that move)."""
         return self.exact_t(*self.block(start, stop), origin[:, None, :], direction[:, None, :])
 
+    def key_block(self, start: int, stop: int, origin, direction, time=None) -> np.ndarray | None:
+        """:meth:`t_block` as keys of :func:`~wavefront.geometry.nearest_root_key`
+        (unsigned, ordered as the hits, every non-hit above them), or None
+        where a kind has no such form (then brute force reads :meth:`t_block`)."""
+        return None
+
     def t_pairs(self, idx: np.ndarray, origin, direction, time=None) -> np.ndarray:
         """``(P,)`` hit distances of pairs: ray ``p`` (a column of ``origin``) against primitive ``idx[p]``."""
         return self.exact_t(*self.gather(idx), origin, direction)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import BLOCK_ELEMENTS, escaped_at_inf
+from ..geometry import BLOCK_ELEMENTS, escaped_at_inf, key_root
 from ..vecmath import dot, true_rows
 from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_extent
 
@@ -284,8 +284,15 @@ class Primitives:
                 first = won[np.concatenate(([True], ray_won[1:] != ray_won[:-1]))]
                 best_idx[ray.take(first)] = offset + start + j.take(first)
                 continue
-            t = kind.t_block(start, stop, origin, direction, time)
-            t_block = np.fmin.reduce(t, axis=0)  # fmin: a miss may be NaN
+            # a kind with keyed roots (spheres): the least key is the nearest
+            # hit, and the keys rank the primitives as their roots would
+            t = kind.key_block(start, stop, origin, direction, time)
+            if t is not None:
+                nearest = np.minimum.reduce(t, axis=0)
+                t_block = key_root(nearest)
+            else:
+                t = kind.t_block(start, stop, origin, direction, time)
+                t_block = nearest = np.fmin.reduce(t, axis=0)  # fmin: a miss may be NaN
             # strict: an earlier block keeps a tie; false where nothing was hit
             closer = t_block < best_t
             # Each ray's lowest primitive at its minimum (there is one where
@@ -296,7 +303,7 @@ class Primitives:
             # branchy loop) took ~70 us of a ~320 us 8 x 4096 block.
             m = stop - start
             rank_type = np.uint8 if m <= 128 else np.uint32  # row + m fits
-            rank = np.multiply(np.not_equal(t, t_block).view(np.uint8), rank_type(m), dtype=rank_type)
+            rank = np.multiply(np.not_equal(t, nearest).view(np.uint8), rank_type(m), dtype=rank_type)
             rank += np.arange(m, dtype=rank_type)[:, None]
             if untouched:
                 # every index still -1 (a scene of spheres only has one block):

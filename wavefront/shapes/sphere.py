@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, nearest_root,
-                        sphere_roots)
+                        nearest_root_key, sphere_roots)
 from ..vecmath import gather
 from .base import ShapeKind
 
@@ -159,6 +159,16 @@ class SphereSet(ShapeKind):
         center, radius_squared = self.block(start, stop)
         center = center + self.velocity[:, start:stop, None] * np.asarray(time).astype(self.dtype, copy=False)
         return self.exact_t(center, radius_squared, origin[:, None, :], direction[:, None, :])
+
+    def key_block(self, start, stop, origin, direction, time=None):
+        """:meth:`t_block`'s roots as :func:`~wavefront.geometry.nearest_root_key`
+        keys (None for an anchored set, whose ``t_min`` is per ray)."""
+        if self.anchored:
+            return None
+        center, radius_squared = self.block(start, stop)
+        if self.velocity is not None and time is not None:
+            center = center + self.velocity[:, start:stop, None] * np.asarray(time).astype(self.dtype, copy=False)
+        return nearest_root_key(*sphere_roots(center, radius_squared, origin[:, None, :], direction[:, None, :]))
 
     def t_pairs(self, idx, origin, direction, time=None):
         if self.velocity is None or time is None:
