@@ -31,9 +31,9 @@ class ListStream(TaskStream):
         self.most_held = max(self.most_held, self.given - len(self.results))
         return self.job(self.tasks[self.given - 1])
 
-    def finished(self, job, radiance, stats):
+    def finished(self, job, stats, radiance):
         assert job.units == self.tasks[len(self.results)]  # in order
-        self.results.append((job.reduce(radiance), stats.samples))
+        self.results.append((job.reduce(radiance), stats))
 
 
 def tasks_of(units, sizes):
@@ -46,13 +46,13 @@ def tasks_of(units, sizes):
 
 
 def streamed_and_alone(scene_name, sizes):
-    """Each task's per-unit results streamed through one wavefront, and rendered alone."""
+    """Each task's per-unit results and counters streamed through one wavefront, and rendered alone."""
     scene = load_scene(SCENES / f"{scene_name}.yaml").with_overrides(width=96, height=64, samples_per_pixel=8)
     cs, key = scene.compile(), scene_key(scene.render.seed)
     units = list(plan_units(scene.width, scene.height, scene.render.samples_per_pixel))
     tasks = tasks_of(units, sizes)
     capacity = 3000  # a few thousand paths: each task's last paths outlive the next task's start
-    alone = [execute(cs, key, capacity, task)[0] for task in tasks]
+    alone = [execute(cs, key, capacity, task)[:2] for task in tasks]
     stream = ListStream(scene, tasks)
     with np.errstate(over="ignore", invalid="ignore"):
         assert trace_paths(cs, stream.job(tasks[0]), key, capacity, TraceStats(), stream=stream) is None
@@ -74,8 +74,10 @@ def test_streamed_tasks_are_each_exactly_their_own_render(scene_name, sizes):
     stream, alone, tasks = streamed_and_alone(scene_name, sizes)
     assert len(stream.results) == len(tasks)
     assert 1 < stream.most_held <= HELD_TASKS
-    for (streamed, samples), own, task in zip(stream.results, alone, tasks):
-        assert samples == sum(u.size for u in task)
+    for (streamed, stats), (own, own_stats), task in zip(stream.results, alone, tasks):
+        assert stats.samples == own_stats.samples == sum(u.size for u in task)
+        # each task's own paths' segments and shadow rays, not whatever ran meanwhile
+        assert (stats.segments, stats.shadow_rays) == (own_stats.segments, own_stats.shadow_rays)
         assert same_results(streamed, own)
 
 
@@ -87,7 +89,7 @@ def test_a_task_handed_back_before_its_last_paths_end_is_caught(monkeypatch):
         stream, alone, _ = streamed_and_alone("three_spheres", [1, 1, 1, 1])
     except IndexError:  # a path whose task has left adds at a slot before the buffer
         return
-    assert not all(same_results(streamed, own) for (streamed, _), own in zip(stream.results, alone))
+    assert not all(same_results(streamed, own) for (streamed, _), (own, _) in zip(stream.results, alone))
 
 
 def test_a_task_handed_back_with_a_few_paths_in_flight_is_caught(monkeypatch):
@@ -96,4 +98,4 @@ def test_a_task_handed_back_with_a_few_paths_in_flight_is_caught(monkeypatch):
     real = path.lowest_in_flight
     monkeypatch.setattr(path, "lowest_in_flight", lambda next_slot, live, riding: real(next_slot, live, riding) + 64)
     stream, alone, _ = streamed_and_alone("three_spheres", [1, 1, 1, 1])
-    assert not all(same_results(streamed, own) for (streamed, _), own in zip(stream.results, alone))
+    assert not all(same_results(streamed, own) for (streamed, _), (own, _) in zip(stream.results, alone))

@@ -312,14 +312,16 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     :class:`PathBatch`.  ``should_stop`` is polled once per bounce; when it
     returns True the trace returns early with incomplete radiance, which the
     caller discards.  With a ``stream``, ``job`` is its first task, and every
-    task's radiance is handed to ``stream.finished`` as soon as its paths
-    have all ended (see :func:`hand_over`); the trace returns None once the
-    wavefront is empty and no task is waiting.
+    task's radiance and counters are handed to ``stream.finished`` as soon as
+    its paths have all ended (see :func:`hand_over`); the trace returns None
+    once the wavefront is empty and no task is waiting (``stats`` is then
+    only the trace's scratch).
     """
-    scene, frame, radiance, stats = begin_trace(cs, job, stats)
-    held = HeldTasks(job) if stream is not None else None
-    if held is not None:
-        radiance = held.radiance
+    if stream is None:
+        scene, frame, radiance, stats = begin_trace(cs, job, stats)
+    else:
+        scene, stats, held = cs.scene, TraceStats(), HeldTasks(job)
+        frame, radiance = scene.camera.frame(scene.width, scene.height), held.radiance
     kernels = kernels_present(cs.materials)
     groups = KernelGroups.build(cs, kernels)
     settings = scene.render
@@ -338,12 +340,14 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     riding = None  # shadow rays whose any-hit query goes with the next bounce's nearest-hit one
     while True:
         if stream is not None:
-            next_slot = hand_over(stream, held, next_slot, live, riding, stats)
+            next_slot = hand_over(stream, held, next_slot, live, riding)
             job, radiance = held.job, held.radiance
         live, next_slot = refill(cs, frame, sampler, job, live, next_slot, capacity, mis)
         if len(live) == 0 or (should_stop is not None and should_stop()):
             break
         stats.segments += len(live)
+        if stream is not None:
+            held.charge(live.slot)
         in_medium = shadows = None
         if cs.media is None:
             if riding is None:
@@ -394,6 +398,8 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
         # keeps its order, bit for bit.  (No media: their shadow rays also
         # need the transmittance.)
         if shadows is not None and len(shadows):
+            if stream is not None:
+                held.charge(shadows.slot, shadow_rays=True)
             if cs.media is None and len(live) and len(live) + len(shadows) <= RIDING_RAYS:
                 riding = shadows
             else:
@@ -403,7 +409,7 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
     if stream is None:
         return radiance
     if not (should_stop is not None and should_stop()):
-        hand_over(stream, held, next_slot, live, None, stats, take=False)
+        hand_over(stream, held, next_slot, live, None, take=False)
     return None
 
 
@@ -419,10 +425,9 @@ class TaskStream:
         are running."""
         raise NotImplementedError
 
-    def finished(self, job: Job, radiance: np.ndarray, stats: TraceStats) -> None:
+    def finished(self, job: Job, stats: TraceStats, radiance: np.ndarray) -> None:
         """Task ``job`` is done: ``radiance`` (3, job.size) is final, and
-        ``stats`` counts its samples and the segments traced since the
-        previous task was handed back."""
+        ``stats`` counts its samples and its own paths' segments and shadow rays."""
         raise NotImplementedError
 
 
@@ -435,6 +440,8 @@ class HeldTasks:
     def __init__(self, first: Job):
         self.tasks = [first]
         self.job = first
+        # each held task's own path segments and shadow rays (see charge)
+        self.segments, self.shadow_rays = [0], [0]
         # room for the held tasks twice over: the window is moved back to the
         # start (a copy of what it holds) once every few tasks, not every task
         self.store = np.zeros((3, 2 * HELD_TASKS * max(first.size, 1)))
@@ -445,12 +452,28 @@ class HeldTasks:
         """The held samples' radiance, (3, job.size): a view."""
         return self.store[:, self.start:self.start + self.job.size]
 
-    def pop(self) -> Job:
-        """The oldest task, out (its radiance stays readable until the next :meth:`add`)."""
+    def charge(self, slot: np.ndarray, shadow_rays: bool = False) -> None:
+        """Count rays (path segments, or shadow rays) to the tasks whose
+        samples they serve, by slot: each task's counts are its own paths',
+        the same numbers as when it ran alone, and a task lost with a dead
+        worker takes its counts with it."""
+        counts = self.shadow_rays if shadow_rays else self.segments
+        below, end = 0, 0
+        for i, task in enumerate(self.tasks[:-1]):  # a few held tasks, not rays
+            end += task.size
+            up_to = int(np.count_nonzero(slot < end))
+            counts[i] += up_to - below
+            below = up_to
+        counts[-1] += slot.size - below
+
+    def pop(self) -> tuple[Job, TraceStats]:
+        """The oldest task and its counters, out (its radiance stays readable
+        until the next :meth:`add`)."""
         task = self.tasks.pop(0)
+        stats = TraceStats(segments=self.segments.pop(0), samples=task.size, shadow_rays=self.shadow_rays.pop(0))
         self.start += task.size
         self.job = Job([u for t in self.tasks for u in t.units], task.width, task.samples_per_pixel)
-        return task
+        return task, stats
 
     def add(self, task: Job) -> None:
         """Task ``task`` joins at the back, its radiance zero."""
@@ -465,6 +488,8 @@ class HeldTasks:
             self.start = 0
         self.store[:, self.start + held:self.start + held + task.size] = 0.0
         self.tasks.append(task)
+        self.segments.append(0)
+        self.shadow_rays.append(0)
         self.job = Job(self.job.units + task.units, task.width, task.samples_per_pixel)
 
 
@@ -480,7 +505,7 @@ def lowest_in_flight(next_slot: int, live: PathBatch, riding: ShadowBatch | None
 
 
 def hand_over(stream: TaskStream, held: HeldTasks, next_slot: int, live: PathBatch, riding: ShadowBatch | None,
-              stats: TraceStats, take: bool = True) -> int:
+              take: bool = True) -> int:
     """Streaming, once a bounce: hand back the oldest tasks whose paths
     have all ended, and once every held sample is issued, take the next task
     into the same wavefront.
@@ -502,9 +527,7 @@ def hand_over(stream: TaskStream, held: HeldTasks, next_slot: int, live: PathBat
     while held.tasks and done + held.tasks[0].size <= lowest:
         size = held.tasks[0].size
         finished = held.radiance[:, :size]
-        stream.finished(held.pop(), finished,
-                        TraceStats(segments=stats.segments, samples=size, shadow_rays=stats.shadow_rays))
-        stats.segments = stats.shadow_rays = 0
+        stream.finished(*held.pop(), radiance=finished)
         done += size
     if done:
         next_slot -= done

@@ -38,7 +38,7 @@ from .output import OutputError, check_output_path
 from .path import HELD_TASKS, TaskStream, TraceStats
 from .sampling import scene_key
 from .scene import CompiledScene, Scene
-from .units import Job, Unit, UnitPlan
+from .units import Job, Unit, UnitPlan, plan_units
 from .validation import first_line
 
 MiB = 1024 * 1024
@@ -60,7 +60,7 @@ SMALLEST_SHARED_TASK = 1 << 14
 # Out per worker: running, or finished and waiting for an earlier one to be
 # merged (a Dask worker runs one task at a time).
 TASKS_IN_FLIGHT = 2
-# Out per pool or inline worker, which streams (see path.hand_over): in its
+# Out per pool worker of a streaming integrator (see path.hand_over): in its
 # wavefront (up to path.HELD_TASKS), or finished and waiting to be merged.
 STREAM_TASKS_IN_FLIGHT = HELD_TASKS + 1
 # A worker's request for its next task, sent once its wavefront has taken every
@@ -69,10 +69,10 @@ MORE = "more"
 # A finished task's pixel sums held by the parent until merged: at worst one
 # sample per pixel, so as many float64 RGB sums as samples.
 RESULT_BYTES_PER_SAMPLE = 3 * 8
-# A streaming worker holds up to HELD_TASKS tasks' per-sample radiance (float64
-# RGB), and taking the next copies what it holds (2 HELD_TASKS - 1 tasks' worth
-# at once), against the one task BYTES_PER_PATH counts.
-STREAM_BYTES_PER_PATH = (2 * HELD_TASKS - 2) * TASK_WAVEFRONTS * 3 * 8
+# A streaming worker keeps its held tasks' per-sample radiance (float64 RGB) in
+# a buffer of 2 HELD_TASKS tasks (path.HeldTasks), against the one task
+# BYTES_PER_PATH counts.
+STREAM_BYTES_PER_PATH = (2 * HELD_TASKS - 1) * TASK_WAVEFRONTS * 3 * 8
 
 
 @dataclass
@@ -157,16 +157,19 @@ class MemoryPlan:
     # The workers are processes that outlive the render (a local Dask cluster): even one is
     # not the parent, and they are still resident, wavefront and all, while the image is written.
     lasting: bool = False
+    # The workers (or the parent, inline) stream tasks through one wavefront (path.hand_over):
+    # the path integrator does, in this process or a pool; Whitted and Dask run a task at a time.
+    streaming: bool = False
 
     @property
     def path_bytes(self) -> int:
-        """A path in flight (a local Dask cluster's workers run one task at a time; others stream)."""
-        return BYTES_PER_PATH + (0 if self.lasting else STREAM_BYTES_PER_PATH)
+        """A path in flight, with its share of the held tasks' radiance."""
+        return BYTES_PER_PATH + (STREAM_BYTES_PER_PATH if self.streaming else 0)
 
     @property
     def result_bytes_per_path(self) -> int:
         """Finished tasks' sums out per worker, per path of its wavefront."""
-        window = TASKS_IN_FLIGHT if self.lasting else STREAM_TASKS_IN_FLIGHT
+        window = STREAM_TASKS_IN_FLIGHT if self.streaming else TASKS_IN_FLIGHT
         return window * TASK_WAVEFRONTS * RESULT_BYTES_PER_SAMPLE
 
     @property
@@ -186,14 +189,15 @@ class MemoryPlan:
 
 
 def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int, film: int,
-                per_worker: int, output: int, lasting: bool = False) -> MemoryPlan:
+                per_worker: int, output: int, lasting: bool = False, streaming: bool = False) -> MemoryPlan:
     """Workers and wavefront size that fit ``memory`` bytes, the most workers first.
 
     An explicit ``chunk_size`` is kept (fewer workers are used if need be);
     otherwise the wavefront is as large as fits, up to ``MAX_CAPACITY``, and
     a worker is dropped rather than run one below ``GOOD_CAPACITY``.  With
     ``lasting`` (worker processes already running, that outlive the render:
-    see :class:`MemoryPlan`) only ``workers`` is planned for.
+    see :class:`MemoryPlan`) only ``workers`` is planned for; ``streaming``
+    as in :class:`MemoryPlan`.
 
     Raises
     ------
@@ -203,16 +207,16 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
     """
     fallback = None
     for w in range(workers, workers - 1 if lasting else 0, -1):
-        plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output, lasting)
+        plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output, lasting, streaming)
         if chunk_size is None:
             spare = memory - plan.peak
             per_path = w * plan.path_bytes + (w * plan.result_bytes_per_path if w > 1 or lasting else 0)
             capacity = min(MAX_CAPACITY, MIN_CAPACITY + max(0, spare) // per_path)
-            plan = MemoryPlan(w, capacity, base, film, per_worker, output, lasting)
+            plan = MemoryPlan(w, capacity, base, film, per_worker, output, lasting, streaming)
             # growing the wavefront raises only render_peak; shrink if the estimate rounds over
             while plan.peak > memory and plan.capacity > MIN_CAPACITY:
                 plan = MemoryPlan(w, max(MIN_CAPACITY, plan.capacity * 7 // 8), base, film, per_worker, output,
-                                  lasting)
+                                  lasting, streaming)
         if plan.peak <= memory:
             if chunk_size is not None or plan.capacity >= GOOD_CAPACITY or w == 1:
                 return plan
@@ -220,7 +224,7 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
     if fallback is not None:
         return fallback
     smallest = MemoryPlan(workers if lasting else 1, chunk_size or MIN_CAPACITY, base, film, per_worker, output,
-                          lasting)
+                          lasting, streaming)
     parts = [f"the process and scene {_mib(base)}"]
     if lasting:
         parts.append(f"{smallest.workers} worker process{'es' if smallest.workers > 1 else ''} "
@@ -425,7 +429,7 @@ class _Stream(TaskStream):
         self.asked = False
         return self.job(units)
 
-    def finished(self, job: Job, radiance: np.ndarray, stats: TraceStats) -> None:
+    def finished(self, job: Job, stats: TraceStats, radiance: np.ndarray) -> None:
         self.deliver((job.reduce(radiance), stats, (os.getpid(), peak_rss())))
 
 
@@ -575,7 +579,8 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
                              lasting=True)
     else:
         budget = plan_memory(memory, 1 if executor is not None else requested, chunk_size, base=base,
-                             film=film_bytes, per_worker=base, output=output)
+                             film=film_bytes, per_worker=base, output=output,
+                             streaming=executor is None and scene.render.integrator in STREAMING)
     capacity = budget.capacity
     workers = requested if executor is not None else budget.workers
     # Units are merged strictly in order, so "the first k units" describes
@@ -678,11 +683,12 @@ def _run_inline(cs, capacity, tasks, merge, stopped) -> None:
 
 
 class _Inbox:
-    """A worker's end of its pipe: the tasks the parent sends, each
-    ``(units, last)``, until None or a task sent as the last."""
+    """A worker's end of its pipe: the tasks the parent sends, each as
+    ``((first unit, units), last)`` (see :func:`_task_message`), until None
+    or a task sent as the last; and its requests for more."""
 
-    def __init__(self, conn):
-        self.conn, self.ended = conn, False
+    def __init__(self, conn, plan: UnitPlan):
+        self.conn, self.plan, self.ended = conn, plan, False
 
     def task(self, wait: bool = True) -> list[Unit] | None:
         """The next task's units; None once the parent has ended the
@@ -693,8 +699,23 @@ class _Inbox:
         if message is None:
             self.ended = True
             return None
-        units, self.ended = message
-        return units
+        (first, count), self.ended = message
+        return [self.plan[i] for i in range(first, first + count)]
+
+    def ask(self) -> None:
+        """Ask the parent for the next task (unless it has said there is none)."""
+        if not self.ended:
+            self.conn.send((MORE, None))
+
+
+def _task_message(units: list[Unit]) -> tuple[int, int]:
+    """A task as the parent sends it: its first unit's index and its number of
+    units (a task is a run of consecutive units).  A few bytes, so the
+    parent's send never blocks: a list of units took ~47 bytes each (a
+    1-pixel-wide image at 1 spp has ~4,000 units a task), and a parent
+    blocked sending a task to a worker that was itself blocked sending a
+    result to it hung the render."""
+    return units[0].index, len(units)
 
 
 def _serve(conn, scene, capacity, parent, compiled, key) -> None:
@@ -710,11 +731,10 @@ def _serve(conn, scene, capacity, parent, compiled, key) -> None:
     are sent, while the parent merges them.
     """
     _init_worker(scene, capacity, parent, compiled, key)
-    inbox = _Inbox(conn)
+    inbox = _Inbox(conn, plan_units(scene.width, scene.height, scene.render.samples_per_pixel))
     while (task := inbox.task()) is not None:
         try:
-            run_stream(task, lambda: inbox.task(wait=False), lambda result: conn.send((True, result)),
-                       lambda: conn.send((MORE, None)))
+            run_stream(task, lambda: inbox.task(wait=False), lambda result: conn.send((True, result)), inbox.ask)
         except Exception as e:  # noqa: BLE001 (any error of a task, or a result that does not pickle)
             where = traceback_of(e)
             try:
@@ -743,6 +763,7 @@ class _WorkerProcess:
     process: object  # multiprocessing.Process
     conn: object  # the parent's end of its pipe
     tasks: list[int] = field(default_factory=list)  # the numbers of the tasks given it and not done, in order
+    wants: bool = False  # it asked for another task (MORE) and has not been given one since
     # Told it has no more work (None, or its task sent as the last): it exits
     # by itself, and its exit is not a death.
     retired: bool = False
@@ -750,14 +771,14 @@ class _WorkerProcess:
 
 class _Workers:
     """Worker processes, each with a pipe of its own: the parent sends tasks
-    (one running and the next waiting) and reads back their results.
+    (one when a worker is idle, another when it asks) and reads back their results.
 
     In place of ``multiprocessing.Pool``, whose start (three handler threads),
     result path and end cost ~10 ms of a 0.1 s render, and which needed its
     private state to notice a dead worker or to end a pool whose dead worker
     took a shared queue's lock with it.  Here nothing is shared: a worker
     that dies (killed, out of memory) is seen on its process sentinel, its
-    task goes back to the queue and a new worker takes its place.
+    tasks go back to the plan's front and a new worker takes its place.
     """
 
     def __init__(self, ctx, count: int, initargs: tuple):
@@ -844,10 +865,12 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     pool = _Workers(ctx, workers, (scene, capacity, os.getpid(), compiled, key))
     try:
         # Tasks are numbered and merged strictly in that order; at most a
-        # window of them is out (running, or finished and waiting for an
-        # earlier one), so the plan is never materialised and what waits to
-        # be merged is bounded, however many samples the render has.
-        # A dead worker's task is run again, before any new one (lowest
+        # window of them is out (held by a worker, or finished and waiting for
+        # an earlier one), so the plan is never materialised and what waits to
+        # be merged is bounded, however many samples the render has.  An idle
+        # worker is given a task at once; a busy one when it asks (MORE), up to
+        # HELD_TASKS, or as soon as the window allows if it asked when it was full.
+        # A dead worker's tasks are run again, before any new one (lowest
         # first): a result depends on its task alone, so the image is unchanged.
         # Workers with nothing left to do are retired at once, so their exits
         # (~2 ms each: tearing down a forked address space) overlap the
@@ -860,32 +883,32 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
         task_of, finished = {}, {}  # number -> task given out; number -> result not yet merged
         merged = issued = 0  # tasks merged; tasks taken from the plan
 
-        def give(worker: _WorkerProcess) -> bool:
-            """Send ``worker`` a task (or, idle with nothing left, its end); whether one was sent."""
+        def give(worker: _WorkerProcess) -> None:
+            """Send ``worker`` a task if the window allows (or, idle with nothing left, its end)."""
             nonlocal issued, upcoming
             if lost:
                 number, task = lost.pop(0)
             elif upcoming is None:
                 if not worker.tasks:
                     pool.retire(worker)
-                return False
+                return
             elif issued - merged >= window:
-                return False
+                return
             else:
                 (number, task), issued = upcoming, issued + 1
                 upcoming = next(plan, None)
             task_of[number] = task
             worker.tasks.append(number)
+            worker.wants = False
             worker.retired = upcoming is None and not lost
             try:
-                worker.conn.send((task, worker.retired))
+                worker.conn.send((_task_message(task), worker.retired))
             except OSError:
                 pass  # it has just died: its sentinel says so, and its tasks go back to `lost`
-            return True
 
         while True:
             for worker in pool.all:
-                if not worker.tasks and not worker.retired:
+                if not worker.retired and (not worker.tasks or worker.wants and len(worker.tasks) < HELD_TASKS):
                     give(worker)
             if not task_of:
                 break
@@ -905,10 +928,12 @@ def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
                     except (EOFError, OSError):  # it died sending: its sentinel says so
                         break
                     if ok == MORE:
-                        # Its wavefront has taken every sample it has: the next task now, so
-                        # it runs on into it instead of draining.  Not sooner: a task given
-                        # is a task no other worker can take, and the plan's last, short
-                        # tasks must go to whichever worker is free first.
+                        # Its wavefront has taken every sample it has: the next task now
+                        # (or once the window allows), so it runs on into it instead of
+                        # draining.  Not sooner: a task given is a task no other worker
+                        # can take, and the plan's last, short tasks must go to whichever
+                        # worker is free first.
+                        worker.wants = True
                         if len(worker.tasks) < HELD_TASKS and not worker.retired:
                             give(worker)
                         continue
