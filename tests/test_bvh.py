@@ -348,3 +348,38 @@ def test_a_million_triangles_build():
     brute = prims.intersect(origin[:, sample], direction[:, sample])
     np.testing.assert_array_equal(hits.primitive_idx[sample], brute.primitive_idx)
     np.testing.assert_array_equal(hits.t[sample], brute.t)
+
+
+@settings(deadline=None, max_examples=20)
+@given(st.integers(2, 24), st.integers(0, 2**32 - 1), st.sampled_from([0.0, 0.3]))
+def test_bvh_agrees_on_a_flat_carpet(n, seed, height):
+    """A tree whose every box shares the root's planes on an axis (a flat grid of triangles,
+    or of triangles all spanning the same height) walks without that axis: rays leaving the
+    grid, grazing it, parallel to it (direction exactly +-0 on that axis, some from on its
+    plane) and crossing it from far away all find brute force's hits."""
+    rng = np.random.default_rng(seed)
+    x, z = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    grid = np.stack((x, np.zeros_like(x), z)).reshape(3, -1)
+    i = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    quads = np.stack((i, i + 1, i + n + 2, i + n + 1))
+    faces = np.concatenate((quads[[0, 1, 2]], quads[[0, 2, 3]]), axis=1)
+    v0, v1, v2 = (grid[:, faces[j]].copy() for j in range(3))
+    v2[1] += height  # every triangle from y = 0 up to the same height: still one shared slab
+    tris = TriangleSet(v0, v1, v2, np.zeros(v0.shape[1], np.int32), np.float64, 4.0)
+    prims = Primitives([tris], np.float64, exact_pad(np.float64, 4.0))
+    assert 1 in BVH(prims, 4.0).shared_axes  # (a tree of few leaves may share z as well)
+    m = 600
+    origin = np.vstack((rng.uniform(-1.5, 1.5, m), rng.choice([-2.0, 1.0, 3.0], m), rng.uniform(-1.5, 1.5, m)))
+    target = np.vstack((rng.uniform(-1.2, 1.2, m), rng.uniform(-0.1, 0.1 + height, m), rng.uniform(-1.2, 1.2, m)))
+    down = normalize(target - origin)
+    first = prims.intersect(origin, down)
+    on = np.flatnonzero(first.primitive_idx >= 0)
+    start = origin[:, on] + first.t[on] * down[:, on]  # on the surface, as a bounce ray's origin
+    direction = normalize(rng.normal(size=(3, on.size)))
+    k = on.size // 4
+    direction[1, :k] *= rng.choice([1e-3, 1e-2, 0.1], k)  # grazing
+    direction[:, :k] = normalize(direction[:, :k])
+    direction[1, k:2 * k] = rng.choice([0.0, -0.0], k)  # parallel to the slab
+    direction[:, k:2 * k] = normalize(direction[:, k:2 * k])
+    start[1, k:k + k // 2] = rng.choice([0.0, height, 0.05], k // 2)  # some on its planes
+    assert_same_hits(prims, np.hstack((origin, start)), np.hstack((down, direction)), np.inf, 4.0)

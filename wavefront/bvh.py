@@ -327,13 +327,13 @@ def _entry_leave(near, far, floor, bound, clip_leave):
     (and ``floor``) and the smallest of ``far``'s (and ``bound``, by
     ``clip_leave``), written in place into ``near[0]`` and ``far[0]`` (fewer
     and smaller temporaries: a level's pairs stay in cache, see
-    TRAVERSAL_BATCH_BIG).  ``near``, ``far``: (3, ...) slab distances."""
+    TRAVERSAL_BATCH_BIG).  ``near``, ``far``: (axes, ...) slab distances."""
     entry, leave = near[0], far[0]
-    np.fmax(entry, near[1], out=entry)
-    np.fmax(entry, near[2], out=entry)
+    for axis in range(1, near.shape[0]):  # three axes, or fewer where the walk shares planes (walk_axes)
+        np.fmax(entry, near[axis], out=entry)
     np.fmax(entry, floor, out=entry)
-    np.fmin(leave, far[1], out=leave)
-    np.fmin(leave, far[2], out=leave)
+    for axis in range(1, far.shape[0]):
+        np.fmin(leave, far[axis], out=leave)
     clip_leave(leave, bound, out=leave)
     return entry, leave
 
@@ -585,15 +585,27 @@ class BVH:
         # working set 8 times bigger (rays of every octant leave a terrain), for a min and a
         # max per axis on pair-minor columns; the 1M terrain's tables 100 MB -> 12.6 MB.
         self.octants = 1 if self.node_major else 8
-        tables = np.empty((2, 3, 2, self.octants, k), dtype=f32)  # enter/leave (lo/hi), axis, child, octant, node
+        # Axes on which every node's box has the root's two planes (W2's carpet: every ball
+        # touches the ground and is as tall as the others) are left out of small trees' walk:
+        # there every node's slab is the root's, the same float32 numbers, so a ray leaves it
+        # where it leaves the root's (folded into the ray's bound once, see _traverse) and
+        # enters it no later than the floor (the traversal's rays start in the root box, up to
+        # rounding, which can only make entries smaller and so keeps more).  W2 walks two
+        # axes of three: a third fewer planes gathered and slabs computed a level.
+        shared = [axis for axis in range(3) if (lo[axis] == lo[axis, 0]).all() and (hi[axis] == hi[axis, 0]).all()]
+        self.shared_axes = [] if self.node_major or len(shared) == 3 else shared
+        self.walk_axes = [axis for axis in range(3) if axis not in self.shared_axes]
+        self.shared_planes = {axis: (lo[axis, 0], hi[axis, 0]) for axis in self.shared_axes}
+        axes = len(self.walk_axes)
+        tables = np.empty((2, axes, 2, self.octants, k), dtype=f32)  # enter/leave (lo/hi), axis, child, octant, node
         for octant in range(self.octants):
-            for axis in range(3):
+            for row, axis in enumerate(self.walk_axes):
                 negative = (octant >> axis) & 1
                 enter, leave = (hi, lo) if negative else (lo, hi)
                 for side, child in enumerate((left, right)):
-                    tables[0, axis, side, octant] = enter[axis, child]
-                    tables[1, axis, side, octant] = leave[axis, child]
-        self.octant_boxes = tables.reshape(12, self.octants * k)
+                    tables[0, row, side, octant] = enter[axis, child]
+                    tables[1, row, side, octant] = leave[axis, child]
+        self.octant_boxes = tables.reshape(4 * axes, self.octants * k)
         offset = np.arange(self.octants)[:, None] * k
         self.octant_left = (left + offset).ravel()  # the right child is the next column
         self.octant_is_leaf = np.tile(self.count > 0, self.octants)
@@ -608,13 +620,13 @@ class BVH:
                 break
             width = 1 << levels
             below = width * np.arange(inner)[None, :] + (width - 1) + np.arange(width)[:, None]  # (width, inner)
-            table = np.zeros((2, 3, width, self.octants, k), dtype=f32)
+            table = np.zeros((2, axes, width, self.octants, k), dtype=f32)
             for octant in range(self.octants):
-                for axis in range(3):
+                for row, axis in enumerate(self.walk_axes):
                     enter, leave = (hi, lo) if (octant >> axis) & 1 else (lo, hi)
-                    table[0, axis, :, octant, :inner] = enter[axis, below]
-                    table[1, axis, :, octant, :inner] = leave[axis, below]
-            self.octant_descendants[levels] = table.reshape(6 * width, self.octants * k)
+                    table[0, row, :, octant, :inner] = enter[axis, below]
+                    table[1, row, :, octant, :inner] = leave[axis, below]
+            self.octant_descendants[levels] = table.reshape(2 * axes * width, self.octants * k)
             first_below = np.zeros((self.octants, k), dtype=np.int64)
             first_below[:, :inner] = offset + width * np.arange(inner) + (width - 1)
             self.octant_below[levels] = first_below.ravel()
@@ -797,9 +809,25 @@ class BVH:
         # the best hit so far in the traversal's frame (nearest >= shift: rays whose root box
         # entry lies beyond their best hit were left out above)
         to_beat = float32_up_nonnegative(nearest - shift)
+        # the walk's rays: the origins' and reciprocals' rows of its axes only
+        walk_rows = self.walk_axes + [3 + axis for axis in self.walk_axes]
+        walk_rays = rays if len(walk_rows) == 6 else rays[walk_rows]
+        # where each ray leaves the slabs every node shares (shared_axes): the walk computes no
+        # leave on those axes, and a ray's bound stands for it (the same float32 numbers the
+        # walk would compute on them at every node: the planes the octant leaves by)
+        cap = None
+        for axis in self.shared_axes:
+            lo_plane, hi_plane = self.shared_planes[axis]
+            leave = np.where(np.signbit(d[axis]), lo_plane, hi_plane)
+            leave -= rays[axis]
+            leave *= rays[3 + axis]
+            cap = leave if cap is None else np.fmin(cap, leave, out=cap)
+        if cap is not None:
+            np.fmin(to_beat, cap, out=to_beat)
         found = []
 
         k = self.child.size
+        axes = len(self.walk_axes)
         d32 = d.astype(f32) if self.sphere_leaves or self.leaf_planes32 is not None else None
 
         def test_leaves(ray, node, entry, rays_walking):
@@ -924,7 +952,8 @@ class BVH:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
             else:
                 np.minimum.at(nearest, ray, t)
-                to_beat[ray] = float32_up_nonnegative(nearest.take(ray) - shift.take(ray))
+                bound = float32_up_nonnegative(nearest.take(ray) - shift.take(ray))
+                to_beat[ray] = bound if cap is None else np.fmin(bound, cap.take(ray), out=bound)
             found.append((ray_ids.take(ray), t, prim))
 
         # Every kind's exact test keeps only t > T_MIN, so a box the ray leaves before T_MIN
@@ -995,16 +1024,16 @@ class BVH:
                 levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else \
                     max(1, min((last - depth) % SMALL_STEP_LEVELS or SMALL_STEP_LEVELS, last - depth))
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
-                r = rays.take(ray, axis=1, mode="wrap")
+                r = walk_rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
-                shape = (2, 3, 1 << levels, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
+                shape = (2, axes, 1 << levels, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
                 if top is not None and (2 << depth) - 1 <= top.shape[1]:  # every node of the depth is in it
                     t = top.take(node, axis=1, mode="wrap").reshape(shape)
-                    t -= r[:3, None]
+                    t -= r[:axes, None]
                 else:
                     t = gather_minus(self.octant_boxes if levels == 1 else self.descendant_boxes[levels]
-                                     if self.node_major else self.octant_descendants[levels], node, shape, r[:3, None])
-                t *= r[3:, None]
+                                     if self.node_major else self.octant_descendants[levels], node, shape, r[:axes, None])
+                t *= r[axes:, None]
                 if self.octants == 1:  # lo/hi planes: the nearer of each pair is where the ray enters
                     near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
                 else:
