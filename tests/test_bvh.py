@@ -383,3 +383,46 @@ def test_bvh_agrees_on_a_flat_carpet(n, seed, height):
     direction[:, k:2 * k] = normalize(direction[:, k:2 * k])
     start[1, k:k + k // 2] = rng.choice([0.0, height, 0.05], k // 2)  # some on its planes
     assert_same_hits(prims, np.hstack((origin, start)), np.hstack((down, direction)), np.inf, 4.0)
+
+
+@settings(deadline=None, max_examples=30)
+@given(st.integers(64, 400), st.integers(0, 2**32 - 1), st.sampled_from([np.float32, np.float64]),
+       st.sampled_from([1e-2, 1.0, 1e2]), st.booleans())
+def test_bvh_agrees_on_rays_leaving_spheres(m, seed, dtype, scale, carpet):
+    """Rays that start where rays hit spheres (bounce rays) and leave them outwards,
+    inwards (refraction) and along their surface, and rays that start just over T_MIN
+    from a sphere aimed back at it: the sphere pass drops a ray's slot where it leaves
+    the padded sphere before T_MIN, which must never lose a hit past T_MIN."""
+    rng = np.random.default_rng(seed)
+    if carpet:  # W2's carpet of equal balls, every one touching the ground
+        center = np.vstack((rng.uniform(-11, 11, m), np.full(m, 0.2), rng.uniform(-11, 11, m))) * scale
+        radius = np.full(m, 0.2 * scale)
+    else:
+        center = rng.uniform(-10, 10, (3, m)) * scale
+        radius = rng.uniform(0.05, 1.0, m) * scale
+    spheres = SphereSet(center, radius, np.zeros(m, np.int32), dtype)
+    prims = Primitives([spheres], dtype)
+    n = 1200
+    sphere = rng.integers(0, m, n)
+    c, r = spheres.center.astype(np.float64)[:, sphere], spheres.radius.astype(np.float64)[sphere]
+    origin = c + normalize(rng.normal(size=(3, n))) * 30.0 * scale
+    first = prims.intersect(origin.astype(dtype), normalize(c - origin).astype(dtype))
+    on = np.flatnonzero(first.primitive_idx >= 0)
+    inward = normalize(c - origin)[:, on]
+    start = origin[:, on] + first.t[on].astype(np.float64) * inward  # on a sphere, as a bounce ray's origin
+    normal = normalize(start - spheres.center.astype(np.float64)[:, first.primitive_idx[on]])
+    direction = normalize(rng.normal(size=(3, on.size)))
+    third = on.size // 3
+    outwards = np.sign((direction[:, :third] * normal[:, :third]).sum(axis=0))
+    direction[:, :third] *= outwards * rng.choice([1.0, 1.0, -1.0], third)  # a third of them inwards
+    along = normalize(np.cross(normal[:, third:2 * third], rng.normal(size=(3, third)), axis=0))
+    direction[:, third:2 * third] = normalize(along + rng.choice([-1e-3, 0.0, 1e-3], third) * normal[:, third:2 * third])
+    back = slice(2 * third, on.size)  # just over T_MIN out along the normal, aimed back
+    away = T_MIN * (1 + rng.choice([1e-9, 1e-6, 1e-3, 0.05, 1.0], on.size - 2 * third))
+    direction[:, back] = -normal[:, back]
+    start[:, back] = start[:, back] + away * normal[:, back]
+    bvh = BVH(prims, 40.0 * scale)
+    assert bvh.sphere_leaves
+    origin, direction = start.astype(dtype), normalize(direction).astype(dtype)
+    brute = assert_same_hits(prims, origin, direction, np.inf, 40.0 * scale)
+    assert (brute.primitive_idx >= 0).mean() > 0.2
