@@ -46,7 +46,9 @@ most of what a level costs.
 Small trees are stored once per ray octant (signs of the direction's
 components), with each child box's planes ordered nearest-first for that
 octant, so the slab test needs no min/max of its two planes per axis, and a
-pair's node index carries its octant with it.  Big trees (node-major) store
+pair's node index carries its octant with it; an axis on which every node has
+the root's planes (a carpet of equal balls on a floor) is left out of their
+walk, its slab folded into each ray's bound once.  Big trees (node-major) store
 one table, a node's boxes in one row: gathered rows are copied to pair-minor
 columns so that the arithmetic runs on contiguous rows, where a min/max per
 axis costs less than eight times the tables' cache footprint.  Their top
@@ -301,6 +303,30 @@ SMALL_STEP_LEVELS = 2
 #   in isolation): the mask made as float64 by the comparison (out=) and then divided by
 #   ~28 (the division itself is ~0.55 ns an element); an integer-bits form that sends a
 #   miss to inf, not NaN, is not the same numbers.
+# Session 9 (W2's recorded intersect calls, /tmp/s9/rays_final_scene.pkl, replayed whole in
+# their own order, camera rays and bounce rays apart, CPU ns a ray, fresh processes of the two
+# trees alternating, medians of 5-8; the machine shared, +-5 % between runs).  In the render's
+# order bounce rays cost ~1.1x camera rays (274 against 249), not the ~1.5x that the image's
+# first 32k camera rays suggested (mostly sky, missing the tree).  Kept: the walk without the
+# axes whose planes every node shares (shared_axes: 274 -> 249 bounce, 249 -> 224 camera), the
+# sphere pass's far root against each ray's floor (253 -> 244 bounce, camera level).  Tried:
+# - the outsized balls tested only by the rays entering their common padded box (the ground
+#   still by every ray, first): 291 against 270 bounce, camera level.  The float64 box clip
+#   (~45 us a batch) and a second brute-force call on the ~40 % of rays that enter
+#   (~133 us for 3 spheres, its fixed ~30 us included) cost more than the (3, N) block
+#   they replace (~220 us); the ground alone costs a third of the four (~115 of ~340 us);
+# - the ground exactly and the balls through a float32 bounding-sphere pre-filter: 349, 421
+#   and 628 against 382, 452 and 438 us for 8,192 bounce, mixed and camera rays, before
+#   merging (camera rays keep ~1 pair a ray: the camera looks at the balls);
+# - nearest_root by two np.where (no division by a bool mask): (4, 8192) float64 67 against
+#   105 us in isolation, but 261 against 255 bounce in the replay (7 runs of 8 slower);
+# - the first step's boxes broadcast as lo/hi planes (no gather of the root's octant column,
+#   no take of the rays' rows): 254 against 256 bounce, 235 against 242 camera, then 272
+#   against 273 and 262 against 263: within noise;
+# - SMALL_STEP_LEVELS 3 (with two axes a step's boxes cost a third less): 282 against 268
+#   bounce, 267 against 249 camera; TRAVERSAL_BATCH 16384: 256 against 253, 227 against 230;
+# - the outsized brute force in 4,096- or 2,048-ray calls: 470 and 595 against 371 us for
+#   8,192 rays; 16,384 or 32,768 at once: 444 and 568 a 8,192 (its temporaries leave L2).
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
