@@ -387,12 +387,13 @@ def test_bvh_agrees_on_a_flat_carpet(n, seed, height):
 
 @settings(deadline=None, max_examples=30)
 @given(st.integers(64, 400), st.integers(0, 2**32 - 1), st.sampled_from([np.float32, np.float64]),
-       st.sampled_from([1e-2, 1.0, 1e2]), st.booleans())
-def test_bvh_agrees_on_rays_leaving_spheres(m, seed, dtype, scale, carpet):
+       st.sampled_from([1e-2, 1.0, 1e2]), st.booleans(), st.booleans())
+def test_bvh_agrees_on_rays_leaving_spheres(m, seed, dtype, scale, carpet, moving):
     """Rays that start where rays hit spheres (bounce rays) and leave them outwards,
     inwards (refraction) and along their surface, and rays that start just over T_MIN
-    from a sphere aimed back at it: the sphere pass drops a ray's slot where it leaves
-    the padded sphere before T_MIN, which must never lose a hit past T_MIN."""
+    from a sphere aimed back at it, with half the spheres moving (each ray at its own
+    time) or none: the sphere pass drops a ray's slot where it leaves the padded
+    (bounding) sphere before T_MIN, which must never lose a hit past T_MIN."""
     rng = np.random.default_rng(seed)
     if carpet:  # W2's carpet of equal balls, every one touching the ground
         center = np.vstack((rng.uniform(-11, 11, m), np.full(m, 0.2), rng.uniform(-11, 11, m))) * scale
@@ -400,17 +401,20 @@ def test_bvh_agrees_on_rays_leaving_spheres(m, seed, dtype, scale, carpet):
     else:
         center = rng.uniform(-10, 10, (3, m)) * scale
         radius = rng.uniform(0.05, 1.0, m) * scale
-    spheres = SphereSet(center, radius, np.zeros(m, np.int32), dtype)
+    velocity = rng.uniform(-1, 1, (3, m)) * scale * (rng.random(m) < 0.5) if moving else None
+    spheres = SphereSet(center, radius, np.zeros(m, np.int32), dtype, velocity)
     prims = Primitives([spheres], dtype)
     n = 1200
     sphere = rng.integers(0, m, n)
-    c, r = spheres.center.astype(np.float64)[:, sphere], spheres.radius.astype(np.float64)[sphere]
+    time = rng.random(n) if moving else None
+    c, r = spheres.center_at(sphere, time).astype(np.float64), spheres.radius.astype(np.float64)[sphere]
     origin = c + normalize(rng.normal(size=(3, n))) * 30.0 * scale
-    first = prims.intersect(origin.astype(dtype), normalize(c - origin).astype(dtype))
+    first = prims.intersect(origin.astype(dtype), normalize(c - origin).astype(dtype), time=time)
     on = np.flatnonzero(first.primitive_idx >= 0)
+    time = None if time is None else time[on]
     inward = normalize(c - origin)[:, on]
     start = origin[:, on] + first.t[on].astype(np.float64) * inward  # on a sphere, as a bounce ray's origin
-    normal = normalize(start - spheres.center.astype(np.float64)[:, first.primitive_idx[on]])
+    normal = normalize(start - spheres.center_at(first.primitive_idx[on], time).astype(np.float64))
     direction = normalize(rng.normal(size=(3, on.size)))
     third = on.size // 3
     outwards = np.sign((direction[:, :third] * normal[:, :third]).sum(axis=0))
@@ -424,5 +428,12 @@ def test_bvh_agrees_on_rays_leaving_spheres(m, seed, dtype, scale, carpet):
     bvh = BVH(prims, 40.0 * scale)
     assert bvh.sphere_leaves
     origin, direction = start.astype(dtype), normalize(direction).astype(dtype)
-    brute = assert_same_hits(prims, origin, direction, np.inf, 40.0 * scale)
+    if moving:
+        brute = prims.intersect(origin, direction, time=time)
+        for tree in (bvh, node_major_bvh(prims, 40.0 * scale)):
+            hits = tree.intersect(origin, direction, time=time)
+            np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
+            np.testing.assert_array_equal(hits.t, brute.t)
+    else:
+        brute = assert_same_hits(prims, origin, direction, np.inf, 40.0 * scale)
     assert (brute.primitive_idx >= 0).mean() > 0.2
