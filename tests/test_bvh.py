@@ -348,3 +348,92 @@ def test_a_million_triangles_build():
     brute = prims.intersect(origin[:, sample], direction[:, sample])
     np.testing.assert_array_equal(hits.primitive_idx[sample], brute.primitive_idx)
     np.testing.assert_array_equal(hits.t[sample], brute.t)
+
+
+@settings(deadline=None, max_examples=20)
+@given(st.integers(2, 24), st.integers(0, 2**32 - 1), st.sampled_from([0.0, 0.3]))
+def test_bvh_agrees_on_a_flat_carpet(n, seed, height):
+    """A tree whose every box shares the root's planes on an axis (a flat grid of triangles,
+    or of triangles all spanning the same height) walks without that axis: rays leaving the
+    grid, grazing it, parallel to it (direction exactly +-0 on that axis, some from on its
+    plane) and crossing it from far away all find brute force's hits."""
+    rng = np.random.default_rng(seed)
+    x, z = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    grid = np.stack((x, np.zeros_like(x), z)).reshape(3, -1)
+    i = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    quads = np.stack((i, i + 1, i + n + 2, i + n + 1))
+    faces = np.concatenate((quads[[0, 1, 2]], quads[[0, 2, 3]]), axis=1)
+    v0, v1, v2 = (grid[:, faces[j]].copy() for j in range(3))
+    v2[1] += height  # every triangle from y = 0 up to the same height: still one shared slab
+    tris = TriangleSet(v0, v1, v2, np.zeros(v0.shape[1], np.int32), np.float64, 4.0)
+    prims = Primitives([tris], np.float64, exact_pad(np.float64, 4.0))
+    assert 1 in BVH(prims, 4.0).shared_axes  # (a tree of few leaves may share z as well)
+    m = 600
+    origin = np.vstack((rng.uniform(-1.5, 1.5, m), rng.choice([-2.0, 1.0, 3.0], m), rng.uniform(-1.5, 1.5, m)))
+    target = np.vstack((rng.uniform(-1.2, 1.2, m), rng.uniform(-0.1, 0.1 + height, m), rng.uniform(-1.2, 1.2, m)))
+    down = normalize(target - origin)
+    first = prims.intersect(origin, down)
+    on = np.flatnonzero(first.primitive_idx >= 0)
+    start = origin[:, on] + first.t[on] * down[:, on]  # on the surface, as a bounce ray's origin
+    direction = normalize(rng.normal(size=(3, on.size)))
+    k = on.size // 4
+    direction[1, :k] *= rng.choice([1e-3, 1e-2, 0.1], k)  # grazing
+    direction[:, :k] = normalize(direction[:, :k])
+    direction[1, k:2 * k] = rng.choice([0.0, -0.0], k)  # parallel to the slab
+    direction[:, k:2 * k] = normalize(direction[:, k:2 * k])
+    start[1, k:k + k // 2] = rng.choice([0.0, height, 0.05], k // 2)  # some on its planes
+    assert_same_hits(prims, np.hstack((origin, start)), np.hstack((down, direction)), np.inf, 4.0)
+
+
+@settings(deadline=None, max_examples=30)
+@given(st.integers(64, 400), st.integers(0, 2**32 - 1), st.sampled_from([np.float32, np.float64]),
+       st.sampled_from([1e-2, 1.0, 1e2]), st.booleans(), st.booleans())
+def test_bvh_agrees_on_rays_leaving_spheres(m, seed, dtype, scale, carpet, moving):
+    """Rays that start where rays hit spheres (bounce rays) and leave them outwards,
+    inwards (refraction) and along their surface, and rays that start just over T_MIN
+    from a sphere aimed back at it, with half the spheres moving (each ray at its own
+    time) or none: the sphere pass drops a ray's slot where it leaves the padded
+    (bounding) sphere before T_MIN, which must never lose a hit past T_MIN."""
+    rng = np.random.default_rng(seed)
+    if carpet:  # W2's carpet of equal balls, every one touching the ground
+        center = np.vstack((rng.uniform(-11, 11, m), np.full(m, 0.2), rng.uniform(-11, 11, m))) * scale
+        radius = np.full(m, 0.2 * scale)
+    else:
+        center = rng.uniform(-10, 10, (3, m)) * scale
+        radius = rng.uniform(0.05, 1.0, m) * scale
+    velocity = rng.uniform(-1, 1, (3, m)) * scale * (rng.random(m) < 0.5) if moving else None
+    spheres = SphereSet(center, radius, np.zeros(m, np.int32), dtype, velocity)
+    prims = Primitives([spheres], dtype)
+    n = 1200
+    sphere = rng.integers(0, m, n)
+    time = rng.random(n) if moving else None
+    c, r = spheres.center_at(sphere, time).astype(np.float64), spheres.radius.astype(np.float64)[sphere]
+    origin = c + normalize(rng.normal(size=(3, n))) * 30.0 * scale
+    first = prims.intersect(origin.astype(dtype), normalize(c - origin).astype(dtype), time=time)
+    on = np.flatnonzero(first.primitive_idx >= 0)
+    time = None if time is None else time[on]
+    inward = normalize(c - origin)[:, on]
+    start = origin[:, on] + first.t[on].astype(np.float64) * inward  # on a sphere, as a bounce ray's origin
+    normal = normalize(start - spheres.center_at(first.primitive_idx[on], time).astype(np.float64))
+    direction = normalize(rng.normal(size=(3, on.size)))
+    third = on.size // 3
+    outwards = np.sign((direction[:, :third] * normal[:, :third]).sum(axis=0))
+    direction[:, :third] *= outwards * rng.choice([1.0, 1.0, -1.0], third)  # a third of them inwards
+    along = normalize(np.cross(normal[:, third:2 * third], rng.normal(size=(3, third)), axis=0))
+    direction[:, third:2 * third] = normalize(along + rng.choice([-1e-3, 0.0, 1e-3], third) * normal[:, third:2 * third])
+    back = slice(2 * third, on.size)  # just over T_MIN out along the normal, aimed back
+    away = T_MIN * (1 + rng.choice([1e-9, 1e-6, 1e-3, 0.05, 1.0], on.size - 2 * third))
+    direction[:, back] = -normal[:, back]
+    start[:, back] = start[:, back] + away * normal[:, back]
+    bvh = BVH(prims, 40.0 * scale)
+    assert bvh.sphere_leaves
+    origin, direction = start.astype(dtype), normalize(direction).astype(dtype)
+    if moving:
+        brute = prims.intersect(origin, direction, time=time)
+        for tree in (bvh, node_major_bvh(prims, 40.0 * scale)):
+            hits = tree.intersect(origin, direction, time=time)
+            np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
+            np.testing.assert_array_equal(hits.t, brute.t)
+    else:
+        brute = assert_same_hits(prims, origin, direction, np.inf, 40.0 * scale)
+    assert (brute.primitive_idx >= 0).mean() > 0.2

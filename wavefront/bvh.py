@@ -46,7 +46,9 @@ most of what a level costs.
 Small trees are stored once per ray octant (signs of the direction's
 components), with each child box's planes ordered nearest-first for that
 octant, so the slab test needs no min/max of its two planes per axis, and a
-pair's node index carries its octant with it.  Big trees (node-major) store
+pair's node index carries its octant with it; an axis on which every node has
+the root's planes (a carpet of equal balls on a floor) is left out of their
+walk, its slab folded into each ray's bound once.  Big trees (node-major) store
 one table, a node's boxes in one row: gathered rows are copied to pair-minor
 columns so that the arithmetic runs on contiguous rows, where a min/max per
 axis costs less than eight times the tables' cache footprint.  Their top
@@ -301,6 +303,30 @@ SMALL_STEP_LEVELS = 2
 #   in isolation): the mask made as float64 by the comparison (out=) and then divided by
 #   ~28 (the division itself is ~0.55 ns an element); an integer-bits form that sends a
 #   miss to inf, not NaN, is not the same numbers.
+# Session 9 (W2's recorded intersect calls, /tmp/s9/rays_final_scene.pkl, replayed whole in
+# their own order, camera rays and bounce rays apart, CPU ns a ray, fresh processes of the two
+# trees alternating, medians of 5-8; the machine shared, +-5 % between runs).  In the render's
+# order bounce rays cost ~1.1x camera rays (274 against 249), not the ~1.5x that the image's
+# first 32k camera rays suggested (mostly sky, missing the tree).  Kept: the walk without the
+# axes whose planes every node shares (shared_axes: 274 -> 249 bounce, 249 -> 224 camera), the
+# sphere pass's far root against each ray's floor (253 -> 244 bounce, camera level).  Tried:
+# - the outsized balls tested only by the rays entering their common padded box (the ground
+#   still by every ray, first): 291 against 270 bounce, camera level.  The float64 box clip
+#   (~45 us a batch) and a second brute-force call on the ~40 % of rays that enter
+#   (~133 us for 3 spheres, its fixed ~30 us included) cost more than the (3, N) block
+#   they replace (~220 us); the ground alone costs a third of the four (~115 of ~340 us);
+# - the ground exactly and the balls through a float32 bounding-sphere pre-filter: 349, 421
+#   and 628 against 382, 452 and 438 us for 8,192 bounce, mixed and camera rays, before
+#   merging (camera rays keep ~1 pair a ray: the camera looks at the balls);
+# - nearest_root by two np.where (no division by a bool mask): (4, 8192) float64 67 against
+#   105 us in isolation, but 261 against 255 bounce in the replay (7 runs of 8 slower);
+# - the first step's boxes broadcast as lo/hi planes (no gather of the root's octant column,
+#   no take of the rays' rows): 254 against 256 bounce, 235 against 242 camera, then 272
+#   against 273 and 262 against 263: within noise;
+# - SMALL_STEP_LEVELS 3 (with two axes a step's boxes cost a third less): 282 against 268
+#   bounce, 267 against 249 camera; TRAVERSAL_BATCH 16384: 256 against 253, 227 against 230;
+# - the outsized brute force in 4,096- or 2,048-ray calls: 470 and 595 against 371 us for
+#   8,192 rays; 16,384 or 32,768 at once: 444 and 568 a 8,192 (its temporaries leave L2).
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
@@ -327,13 +353,13 @@ def _entry_leave(near, far, floor, bound, clip_leave):
     (and ``floor``) and the smallest of ``far``'s (and ``bound``, by
     ``clip_leave``), written in place into ``near[0]`` and ``far[0]`` (fewer
     and smaller temporaries: a level's pairs stay in cache, see
-    TRAVERSAL_BATCH_BIG).  ``near``, ``far``: (3, ...) slab distances."""
+    TRAVERSAL_BATCH_BIG).  ``near``, ``far``: (axes, ...) slab distances."""
     entry, leave = near[0], far[0]
-    np.fmax(entry, near[1], out=entry)
-    np.fmax(entry, near[2], out=entry)
+    for axis in range(1, near.shape[0]):  # three axes, or fewer where the walk shares planes (walk_axes)
+        np.fmax(entry, near[axis], out=entry)
     np.fmax(entry, floor, out=entry)
-    np.fmin(leave, far[1], out=leave)
-    np.fmin(leave, far[2], out=leave)
+    for axis in range(1, far.shape[0]):
+        np.fmin(leave, far[axis], out=leave)
     clip_leave(leave, bound, out=leave)
     return entry, leave
 
@@ -585,15 +611,27 @@ class BVH:
         # working set 8 times bigger (rays of every octant leave a terrain), for a min and a
         # max per axis on pair-minor columns; the 1M terrain's tables 100 MB -> 12.6 MB.
         self.octants = 1 if self.node_major else 8
-        tables = np.empty((2, 3, 2, self.octants, k), dtype=f32)  # enter/leave (lo/hi), axis, child, octant, node
+        # Axes on which every node's box has the root's two planes (W2's carpet: every ball
+        # touches the ground and is as tall as the others) are left out of small trees' walk:
+        # there every node's slab is the root's, the same float32 numbers, so a ray leaves it
+        # where it leaves the root's (folded into the ray's bound once, see _traverse) and
+        # enters it no later than the floor (the traversal's rays start in the root box, up to
+        # rounding, which can only make entries smaller and so keeps more).  W2 walks two
+        # axes of three: a third fewer planes gathered and slabs computed a level.
+        shared = [axis for axis in range(3) if (lo[axis] == lo[axis, 0]).all() and (hi[axis] == hi[axis, 0]).all()]
+        self.shared_axes = [] if self.node_major or len(shared) == 3 else shared
+        self.walk_axes = [axis for axis in range(3) if axis not in self.shared_axes]
+        self.shared_planes = {axis: (lo[axis, 0], hi[axis, 0]) for axis in self.shared_axes}
+        axes = len(self.walk_axes)
+        tables = np.empty((2, axes, 2, self.octants, k), dtype=f32)  # enter/leave (lo/hi), axis, child, octant, node
         for octant in range(self.octants):
-            for axis in range(3):
+            for row, axis in enumerate(self.walk_axes):
                 negative = (octant >> axis) & 1
                 enter, leave = (hi, lo) if negative else (lo, hi)
                 for side, child in enumerate((left, right)):
-                    tables[0, axis, side, octant] = enter[axis, child]
-                    tables[1, axis, side, octant] = leave[axis, child]
-        self.octant_boxes = tables.reshape(12, self.octants * k)
+                    tables[0, row, side, octant] = enter[axis, child]
+                    tables[1, row, side, octant] = leave[axis, child]
+        self.octant_boxes = tables.reshape(4 * axes, self.octants * k)
         offset = np.arange(self.octants)[:, None] * k
         self.octant_left = (left + offset).ravel()  # the right child is the next column
         self.octant_is_leaf = np.tile(self.count > 0, self.octants)
@@ -608,13 +646,13 @@ class BVH:
                 break
             width = 1 << levels
             below = width * np.arange(inner)[None, :] + (width - 1) + np.arange(width)[:, None]  # (width, inner)
-            table = np.zeros((2, 3, width, self.octants, k), dtype=f32)
+            table = np.zeros((2, axes, width, self.octants, k), dtype=f32)
             for octant in range(self.octants):
-                for axis in range(3):
+                for row, axis in enumerate(self.walk_axes):
                     enter, leave = (hi, lo) if (octant >> axis) & 1 else (lo, hi)
-                    table[0, axis, :, octant, :inner] = enter[axis, below]
-                    table[1, axis, :, octant, :inner] = leave[axis, below]
-            self.octant_descendants[levels] = table.reshape(6 * width, self.octants * k)
+                    table[0, row, :, octant, :inner] = enter[axis, below]
+                    table[1, row, :, octant, :inner] = leave[axis, below]
+            self.octant_descendants[levels] = table.reshape(2 * axes * width, self.octants * k)
             first_below = np.zeros((self.octants, k), dtype=np.int64)
             first_below[:, :inner] = offset + width * np.arange(inner) + (width - 1)
             self.octant_below[levels] = first_below.ravel()
@@ -797,9 +835,25 @@ class BVH:
         # the best hit so far in the traversal's frame (nearest >= shift: rays whose root box
         # entry lies beyond their best hit were left out above)
         to_beat = float32_up_nonnegative(nearest - shift)
+        # the walk's rays: the origins' and reciprocals' rows of its axes only
+        walk_rows = self.walk_axes + [3 + axis for axis in self.walk_axes]
+        walk_rays = rays if len(walk_rows) == 6 else rays[walk_rows]
+        # where each ray leaves the slabs every node shares (shared_axes): the walk computes no
+        # leave on those axes, and a ray's bound stands for it (the same float32 numbers the
+        # walk would compute on them at every node: the planes the octant leaves by)
+        cap = None
+        for axis in self.shared_axes:
+            lo_plane, hi_plane = self.shared_planes[axis]
+            leave = np.where(np.signbit(d[axis]), lo_plane, hi_plane)
+            leave -= rays[axis]
+            leave *= rays[3 + axis]
+            cap = leave if cap is None else np.fmin(cap, leave, out=cap)
+        if cap is not None:
+            np.fmin(to_beat, cap, out=to_beat)
         found = []
 
         k = self.child.size
+        axes = len(self.walk_axes)
         d32 = d.astype(f32) if self.sphere_leaves or self.leaf_planes32 is not None else None
 
         def test_leaves(ray, node, entry, rays_walking):
@@ -835,7 +889,16 @@ class BVH:
             """The bounding-sphere pass of spheres-only trees: a float32 test in
             the traversal's frame over all (leaf_size, P) (ray, sphere) slots
             keeps those whose line passes within a padded bounding radius and
-            whose span overlaps [0, to_beat]; padding slots are NaN and never kept."""
+            whose span in that padded sphere overlaps [T_MIN, to_beat] (in the
+            traversal's frame); padding slots are NaN and never kept.
+
+            The span's far end is the padded sphere's far root, ``h + sqrt(reach^2
+            - |l|^2)``: a ray leaving a ball starts on it with that root at about 0,
+            below the floor (T_MIN), and is not tested against it again (61 % of the
+            exact tests of W2's bounce rays were such).  Conservative as the rest of
+            the pass: the LEAF_PAD pads in ``reach^2 - |l|^2`` (about 2 reach LEAF_PAD
+            pads more than the true sphere's) put the computed root past the true one by
+            about LEAF_PAD pads, more than the float32 rounding of ``h`` and ``|l|``."""
             if self.node_major:
                 rows = gather_columns(self.leaf_rows32, node)  # (4 leaf_size, P)
                 center, reach = rows[:3 * self.leaf_size].reshape(3, self.leaf_size, -1), rows[3 * self.leaf_size:]
@@ -854,8 +917,12 @@ class BVH:
             oc *= oc
             distance2 = oc[0] + oc[1]
             distance2 += oc[2]
-            candidate = distance2 <= reach * reach
-            candidate &= h + reach >= 0
+            reach2 = reach * reach
+            candidate = distance2 <= reach2
+            with np.errstate(invalid="ignore"):  # NaN where the line passes beyond reach: not a candidate
+                far = np.sqrt(np.subtract(reach2, distance2, out=reach2), out=reach2)
+            far += h
+            candidate &= far >= ray_floor.take(ray)
             h -= reach
             candidate &= h <= to_beat.take(ray)
             slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
@@ -924,7 +991,8 @@ class BVH:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
             else:
                 np.minimum.at(nearest, ray, t)
-                to_beat[ray] = float32_up_nonnegative(nearest.take(ray) - shift.take(ray))
+                bound = float32_up_nonnegative(nearest.take(ray) - shift.take(ray))
+                to_beat[ray] = bound if cap is None else np.fmin(bound, cap.take(ray), out=bound)
             found.append((ray_ids.take(ray), t, prim))
 
         # Every kind's exact test keeps only t > T_MIN, so a box the ray leaves before T_MIN
@@ -934,6 +1002,11 @@ class BVH:
         # inside the boxes of the primitives around their origin: on the 1M terrain it drops
         # a tenth of their exact tests.
         floor = max(f32(0), np.nextafter(f32(T_MIN - shift.max()), f32(-np.inf)))  # float32_down, on a scalar
+        # ... and each ray's own, for the sphere pass (see sphere_slots), where one gather serves
+        # a whole (leaf_size, P) pass: a bounce ray's exact test of the ball it leaves is
+        # dropped only where T_MIN is its floor, while the batch's is 0 as soon as one of its
+        # rays comes from outside the tree
+        ray_floor = float32_down(T_MIN - shift) if self.sphere_leaves else None
         if self.node_major:
             def gather_columns(table, node):
                 """``table``'s rows ``node`` as columns: (R, P) from a node-major (K, R) table."""
@@ -995,16 +1068,16 @@ class BVH:
                 levels = max(1, min(STEP_LEVELS, last - depth)) if self.node_major else \
                     max(1, min((last - depth) % SMALL_STEP_LEVELS or SMALL_STEP_LEVELS, last - depth))
                 # mode="wrap" skips the bounds check (indices are valid by construction); measured 30 % faster
-                r = rays.take(ray, axis=1, mode="wrap")
+                r = walk_rays.take(ray, axis=1, mode="wrap")
                 top = self.top_boxes.get(levels)
-                shape = (2, 3, 1 << levels, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
+                shape = (2, axes, 1 << levels, pairs)  # enter/leave (lo/hi), axis, child (descendant), pair
                 if top is not None and (2 << depth) - 1 <= top.shape[1]:  # every node of the depth is in it
                     t = top.take(node, axis=1, mode="wrap").reshape(shape)
-                    t -= r[:3, None]
+                    t -= r[:axes, None]
                 else:
                     t = gather_minus(self.octant_boxes if levels == 1 else self.descendant_boxes[levels]
-                                     if self.node_major else self.octant_descendants[levels], node, shape, r[:3, None])
-                t *= r[3:, None]
+                                     if self.node_major else self.octant_descendants[levels], node, shape, r[:axes, None])
+                t *= r[axes:, None]
                 if self.octants == 1:  # lo/hi planes: the nearer of each pair is where the ray enters
                     near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
                 else:
