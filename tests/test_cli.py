@@ -244,3 +244,22 @@ def test_sampler_flag_overrides_the_scene_and_is_recorded(tmp_path):
         assert read_png_metadata(out)["wavefront.sampler"] == sampler
         images[sampler] = out.read_bytes()
     assert images["sobol"] != images["independent"]
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task") or (os.cpu_count() or 1) < 2,
+                    reason="counts threads through Linux's /proc; one core starts no BLAS threads anyway")
+@pytest.mark.parametrize("chosen", [None, "2"])
+def test_importing_wavefront_first_starts_no_blas_threads_unless_the_user_chose(chosen):
+    """A command's NumPy runs one thread (OpenBLAS's pool spun on the other
+    core at every start); an OPENBLAS_NUM_THREADS the user set is kept."""
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    if chosen is not None:
+        env["OPENBLAS_NUM_THREADS"] = chosen
+    code = ("import os, glob, wavefront; "
+            "print(os.environ['OPENBLAS_NUM_THREADS'], len(glob.glob(f'/proc/{os.getpid()}/task/*')))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    setting, threads = out.split()
+    if chosen is None:
+        assert (setting, threads) == ("1", "1")
+    else:  # the user's choice stands, and OpenBLAS started its threads
+        assert setting == chosen and int(threads) > 1

@@ -6,6 +6,19 @@
 
 __version__ = "0.1.0"  # the package's version (pyproject.toml reads it from here)
 
+import os as _os
+import sys as _sys
+
+# One thread per process: wavefront's parallelism is its worker processes, and
+# NumPy's matrix products here are small.  OpenBLAS starts a pool of threads when
+# NumPy is imported, and on a 2-core machine its spinning thread took the other
+# core from the import itself (0.10 s against 0.05 s, ~50 ms of CPU at every
+# command's start: W2's whole command ~5 % slower) and from the workers forked
+# after it.  Only if NumPy is not loaded yet, and only where the user has not
+# chosen: ``OPENBLAS_NUM_THREADS`` set beforehand is kept.
+if "numpy" not in _sys.modules:
+    _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 from . import distributed  # so wavefront.distributed.dask_executor works after "import wavefront"
 from .background import Sky, Solid
 from .camera import Camera
