@@ -306,8 +306,9 @@ class KernelGroups:
     def mixed(self, group) -> bool:
         """Whether the groups other than the largest hold at least
         ``GROUPED_OTHER_SHARE`` of the hits (``group``: :meth:`of`'s)."""
-        counts = np.bincount(group + 1, minlength=self.count + 1)[1:]  # the misses' count dropped
-        return int(counts.max()) < (1.0 - GROUPED_OTHER_SHARE) * int(counts.sum())
+        # a compare and a count per group: 13 us on a W1 bounce, np.bincount 145
+        counts = [int(np.count_nonzero(group == k)) for k in range(self.count)]
+        return max(counts) < (1.0 - GROUPED_OTHER_SHARE) * sum(counts)
 
     def order(self, group) -> tuple[np.ndarray, list[tuple[int, int]]]:
         """The rows that hit something, kernel 0's first, then kernel 1's,
