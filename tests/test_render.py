@@ -242,8 +242,9 @@ def test_escaped_paths_left_in_the_batch_change_no_pixel(monkeypatch, name, over
         scene = scene.replace(**{kind: [s for s in shapes if lamp(s)] + [s for s in shapes if not lamp(s)]})
         assert lamp(getattr(scene, kind)[0])
     images = []
-    for fraction in (0.0, 1.0):
+    for fraction, share in ((0.0, 0.3), (1.0, 2.0)):  # a share above 1: never grouped for a mix of kernels
         monkeypatch.setattr(path_module, "ESCAPED_KEPT_FRACTION", fraction)
+        monkeypatch.setattr(path_module, "GROUPED_OTHER_SHARE", share)
         images.append(render(scene, workers=1))
     np.testing.assert_array_equal(images[0], images[1])
 
