@@ -327,6 +327,30 @@ SMALL_STEP_LEVELS = 2
 #   bounce, 267 against 249 camera; TRAVERSAL_BATCH 16384: 256 against 253, 227 against 230;
 # - the outsized brute force in 4,096- or 2,048-ray calls: 470 and 595 against 371 us for
 #   8,192 rays; 16,384 or 32,768 at once: 444 and 568 a 8,192 (its temporaries leave L2).
+# Session 9, second round (the same recorded calls; integ's BVH module and this one loaded in one
+# process over the same primitives, whole replays alternating, CPU ns a ray, medians of 11-15:
+# one process shows ~1 % where fresh processes differ by +-5 %).  Where the time goes (timers
+# between the lines, bounce rays, ~240-290 ns a ray by load): the outsized brute force ~50
+# (sphere_roots and the keys ~40: 21 float64 passes over (4, N), L2-bound); set-up ~45 and the
+# root clip; the walk ~105 (the boxes' gather and subtraction 43, the kept pairs' bookkeeping
+# 28, of which nonzero over (4, P) bools ~16 us a step, entry/leave 15, the rays' gather 9, the
+# multiplication 8); the leaves ~50 (the sphere pass 26, the exact tests 13, after them 7.5).
+# The line profiler misplaced much of the set-up (np.nextafter showed 84 us, is 25).  Kept,
+# together (bounce 0.968, camera 0.986 of integ, 11 runs, faster in 10 of 11 pairs; fresh
+# processes of /tmp/bvh4/bench.py, 10 each: 285.2 against 288.4 bounce, 270.2 against 271.1):
+# a scalar t_max stays a scalar in _batched's batches (each batch then skips escaped_at_inf's
+# np.where over its rays and brute force's copy of t_max), float32_floor instead of
+# np.nextafter, the leaves' entries taken only for rounds, a step onto a complete tree's
+# leaves giving node numbers (leaf_below), the shared axis's leave plane by a take, the sphere
+# exact test through root keys (SphereSet.exact_t).  Tried, not kept:
+# - the float32 ray table made for every ray and gathered once, four bytes an element, where
+#   at least half of them enter the root box (no gathers of the float64 o, d and 1/d; the exact
+#   tests reading them at their columns): 0.980 then 1.014 bounce, 0.996 and 1.004 camera;
+# - sphere_roots with its three axes as one (3, M, N) array (5 calls fewer, the same numbers):
+#   (4, 7000) float64 167-184 against 167-173 us, 1,700 pairs 17.4-18.0 against 16.5-17.6;
+# - small trees' boxes node-major now that W2 walks two axes (a node's 16 planes, one 64-byte
+#   line, gathered as rows; the transposed copy in the subtraction): 262-279 against 59-62 us
+#   for 7,500 pairs (a 64-byte void gather no better).
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
