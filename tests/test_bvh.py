@@ -79,13 +79,17 @@ def subtree_rounds_bvh(prims, extent):
 @contextlib.contextmanager
 def walked_in_parts():
     """The traversal's memory bounds (WALK_PAIRS, WALK_PART, LEAF_SLOTS) made
-    tiny, so that every level and every leaf stage is walked in many parts."""
-    saved = bvh_module.WALK_PAIRS, bvh_module.WALK_PART, bvh_module.LEAF_SLOTS
-    bvh_module.WALK_PAIRS, bvh_module.WALK_PART, bvh_module.LEAF_SLOTS = 24, 7, 40
+    tiny, so that every level and every leaf stage is walked in many parts, and
+    its batches too (a scalar t_max stays a scalar in each, an array is cut)."""
+    names = ("WALK_PAIRS", "WALK_PART", "LEAF_SLOTS", "TRAVERSAL_BATCH", "TRAVERSAL_BATCH_BIG")
+    saved = [getattr(bvh_module, name) for name in names]
+    for name, value in zip(names, (24, 7, 40, 97, 97)):
+        setattr(bvh_module, name, value)
     try:
         yield
     finally:
-        bvh_module.WALK_PAIRS, bvh_module.WALK_PART, bvh_module.LEAF_SLOTS = saved
+        for name, value in zip(names, saved):
+            setattr(bvh_module, name, value)
 
 
 def assert_same_hits(prims, origin, direction, t_max, extent=None):
@@ -437,3 +441,17 @@ def test_bvh_agrees_on_rays_leaving_spheres(m, seed, dtype, scale, carpet, movin
     else:
         brute = assert_same_hits(prims, origin, direction, np.inf, 40.0 * scale)
     assert (brute.primitive_idx >= 0).mean() > 0.2
+
+
+def test_float32_floor_is_float32_down_of_t_min_less_shift():
+    """The ray floors' integer arithmetic gives np.nextafter's numbers, at every sign,
+    at zero (shift == T_MIN), near T_MIN, and past float32's range."""
+    f32_max = float(np.finfo(np.float32).max)
+    edges = [0.0, 5e-324, 1e-300, T_MIN, np.nextafter(T_MIN, 0.0), np.nextafter(T_MIN, 1.0), 2 * T_MIN, 0.5,
+             1.0, 1e3, 1e30, f32_max, np.nextafter(f32_max, np.inf), 2 * f32_max, 1e300]
+    rng = np.random.default_rng(7)
+    shift = np.concatenate((edges, rng.uniform(0, 2 * T_MIN, 500), 10.0 ** rng.uniform(-8, 8, 500)))
+    with np.errstate(over="ignore"):  # both casts overflow past float32's range, as in a render
+        expected = bvh_module.float32_down(T_MIN - shift)
+        actual = bvh_module.float32_floor(shift)
+    np.testing.assert_array_equal(actual.view(np.int32), expected.view(np.int32))

@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import T_MIN, escaped_at_inf, is_hit
+from .geometry import T_MIN, escaped_at_inf
 from .shapes import Hits, Primitives
 from .vecmath import gather
 
@@ -327,6 +327,30 @@ SMALL_STEP_LEVELS = 2
 #   bounce, 267 against 249 camera; TRAVERSAL_BATCH 16384: 256 against 253, 227 against 230;
 # - the outsized brute force in 4,096- or 2,048-ray calls: 470 and 595 against 371 us for
 #   8,192 rays; 16,384 or 32,768 at once: 444 and 568 a 8,192 (its temporaries leave L2).
+# Session 9, second round (the same recorded calls; integ's BVH module and this one loaded in one
+# process over the same primitives, whole replays alternating, CPU ns a ray, medians of 11-15:
+# one process shows ~1 % where fresh processes differ by +-5 %).  Where the time goes (timers
+# between the lines, bounce rays, ~240-290 ns a ray by load): the outsized brute force ~50
+# (sphere_roots and the keys ~40: 21 float64 passes over (4, N), L2-bound); set-up ~45 and the
+# root clip; the walk ~105 (the boxes' gather and subtraction 43, the kept pairs' bookkeeping
+# 28, of which nonzero over (4, P) bools ~16 us a step, entry/leave 15, the rays' gather 9, the
+# multiplication 8); the leaves ~50 (the sphere pass 26, the exact tests 13, after them 7.5).
+# The line profiler misplaced much of the set-up (np.nextafter showed 84 us, is 25).  Kept,
+# together (bounce 0.968, camera 0.986 of integ, 11 runs, faster in 10 of 11 pairs; fresh
+# processes of /tmp/bvh4/bench.py, 10 each: 285.2 against 288.4 bounce, 270.2 against 271.1):
+# a scalar t_max stays a scalar in _batched's batches (each batch then skips escaped_at_inf's
+# np.where over its rays and brute force's copy of t_max), float32_floor instead of
+# np.nextafter, the leaves' entries taken only for rounds, a step onto a complete tree's
+# leaves giving node numbers (leaf_below), the shared axis's leave plane by a take, the sphere
+# exact test through root keys (SphereSet.exact_t).  Tried, not kept:
+# - the float32 ray table made for every ray and gathered once, four bytes an element, where
+#   at least half of them enter the root box (no gathers of the float64 o, d and 1/d; the exact
+#   tests reading them at their columns): 0.980 then 1.014 bounce, 0.996 and 1.004 camera;
+# - sphere_roots with its three axes as one (3, M, N) array (5 calls fewer, the same numbers):
+#   (4, 7000) float64 167-184 against 167-173 us, 1,700 pairs 17.4-18.0 against 16.5-17.6;
+# - small trees' boxes node-major now that W2 walks two axes (a node's 16 planes, one 64-byte
+#   line, gathered as rows; the transposed copy in the subtraction): 262-279 against 59-62 us
+#   for 7,500 pairs (a 64-byte void gather no better).
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
@@ -389,6 +413,29 @@ def float32_up_nonnegative(x) -> np.ndarray:
 def float32_down(x) -> np.ndarray:
     """``x`` in float32, rounded towards -inf."""
     return np.nextafter(np.asarray(x).astype(np.float32), np.float32(-np.inf))
+
+
+_FLOAT32_MAX = np.finfo(np.float32).max
+
+
+def float32_floor(shift: np.ndarray) -> np.ndarray:
+    """``float32_down(T_MIN - shift)`` for float64 ``shift >= 0`` (finite), the same numbers.
+
+    ``np.nextafter`` costs ~3 ns an element (~25 us of a batch's 7,000 rays, this ~10):
+    instead the float32 ``x`` of ``T_MIN - shift``, rounded to nearest, steps down by one
+    unit in its bits, read as an integer: one less for ``x > 0``, one more for ``x < 0``
+    and for -0 (its magnitude grows: -0 -> the least negative subnormal).  It is made as
+    ``-(shift - T_MIN)``, which rounds to the same ``x`` (rounding is symmetric) but is -0,
+    never +0, where ``shift == T_MIN`` (a difference near T_MIN never rounds to zero in
+    float32 otherwise), and ``shift - T_MIN`` above float32's largest is clamped to it so
+    that ``x`` steps down to -inf as ``np.nextafter``'s does, not past it into NaN.
+    """
+    x = np.subtract(shift, T_MIN).astype(np.float32)
+    np.minimum(x, _FLOAT32_MAX, out=x)
+    np.negative(x, out=x)
+    bits = x.view(np.int32)
+    bits -= (bits >> 31) | 1  # the sign bit spread: -1 for x < 0 (and -0), 0 above; | 1: +-1
+    return x
 
 
 def divmod_by(a: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -621,7 +668,7 @@ class BVH:
         shared = [axis for axis in range(3) if (lo[axis] == lo[axis, 0]).all() and (hi[axis] == hi[axis, 0]).all()]
         self.shared_axes = [] if self.node_major or len(shared) == 3 else shared
         self.walk_axes = [axis for axis in range(3) if axis not in self.shared_axes]
-        self.shared_planes = {axis: (lo[axis, 0], hi[axis, 0]) for axis in self.shared_axes}
+        self.shared_planes = {axis: np.array([hi[axis, 0], lo[axis, 0]]) for axis in self.shared_axes}  # leave by, sign +/-
         axes = len(self.walk_axes)
         tables = np.empty((2, axes, 2, self.octants, k), dtype=f32)  # enter/leave (lo/hi), axis, child, octant, node
         for octant in range(self.octants):
@@ -639,7 +686,7 @@ class BVH:
         # Small trees step SMALL_STEP_LEVELS full levels at a time too, from per-octant tables of
         # a node's descendants (rows (enter/leave, axis, descendant), column octant * K + node,
         # as octant_boxes), and octant_below[levels] gives the first descendant's column.
-        self.octant_descendants, self.octant_below = {}, {}
+        self.octant_descendants, self.octant_below, self.leaf_below = {}, {}, {}
         for levels in range(2, (1 if self.node_major else SMALL_STEP_LEVELS) + 1):
             inner = (1 << max(self.first_leaf_depth - levels + 1, 0)) - 1  # nodes `levels` full levels above the first leaves
             if inner == 0:
@@ -656,6 +703,9 @@ class BVH:
             first_below = np.zeros((self.octants, k), dtype=np.int64)
             first_below[:, :inner] = offset + width * np.arange(inner) + (width - 1)
             self.octant_below[levels] = first_below.ravel()
+            leaf_below = np.zeros((self.octants, k), dtype=np.int64)  # the same in node numbers
+            leaf_below[:, :inner] = width * np.arange(inner) + (width - 1)
+            self.leaf_below[levels] = leaf_below.ravel()
         if self.node_major:  # the same numbers, one row per node (see NODE_MAJOR_NODES)
             self.octant_boxes = np.ascontiguousarray(self.octant_boxes.T)  # (K, 12)
             # Several levels at a step where all are full: node n's descendants `levels`
@@ -732,8 +782,15 @@ class BVH:
         batch = TRAVERSAL_BATCH_BIG if self.node_major else TRAVERSAL_BATCH
         if n <= batch:
             return query(origin, direction, t_max, time)
-        t_max = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
-        parts = [query(origin[:, a:a + batch], direction[:, a:a + batch], t_max[a:a + batch],
+        # a scalar t_max (the paths' rays: inf) stays one, so that each batch's answer skips
+        # escaped_at_inf's np.where over its rays, and brute force its copy of t_max (~20 us
+        # a batch of 8,192; W2's renders pass every bounce's rays at once)
+        if np.ndim(t_max) == 0:
+            limit = lambda a: t_max  # noqa: E731
+        else:
+            t_max = np.broadcast_to(np.asarray(t_max, dtype=origin.dtype), (n,))
+            limit = lambda a: t_max[a:a + batch]  # noqa: E731
+        parts = [query(origin[:, a:a + batch], direction[:, a:a + batch], limit(a),
                        None if time is None else time[a:a + batch]) for a in range(0, n, batch)]
         if isinstance(parts[0], Hits):
             return Hits(np.concatenate([h.t for h in parts]), np.concatenate([h.primitive_idx for h in parts]))
@@ -843,8 +900,8 @@ class BVH:
         # walk would compute on them at every node: the planes the octant leaves by)
         cap = None
         for axis in self.shared_axes:
-            lo_plane, hi_plane = self.shared_planes[axis]
-            leave = np.where(np.signbit(d[axis]), lo_plane, hi_plane)
+            # the plane the ray leaves by, picked by its sign bit (a take from two: ~5 us a batch, np.where ~9)
+            leave = self.shared_planes[axis].take(np.signbit(d[axis]).view(np.uint8))
             leave -= rays[axis]
             leave *= rays[3 + axis]
             cap = leave if cap is None else np.fmin(cap, leave, out=cap)
@@ -856,10 +913,11 @@ class BVH:
         axes = len(self.walk_axes)
         d32 = d.astype(f32) if self.sphere_leaves or self.leaf_planes32 is not None else None
 
-        def test_leaves(ray, node, entry, rays_walking):
+        def test_leaves(ray, node, entries, at, rays_walking):
             """Test (ray, leaf) pairs, each ray's nearest leaves first.
 
-            ``entry`` is where each pair's ray enters its leaf's box.  Every
+            ``entries.take(at)`` is where each pair's ray enters its leaf's box
+            (taken only where rounds are made: most small trees' calls make none).  Every
             round tests each ray's nearest remaining leaves (ties included)
             and then drops the pairs whose leaf the ray enters beyond its
             best hit so far, the same cull as the node boxes': a ray over a
@@ -869,8 +927,10 @@ class BVH:
             ray are left, what is left is tested at once.
             """
             rounds = BIG_LEAF_ROUNDS if self.node_major else LEAF_ROUNDS
+            entry = None
             for round_ in range(rounds):
                 if round_ < rounds - 1 and ray.size > self.leaf_rounds_above * rays_walking:
+                    entry = entries.take(at) if entry is None else entry
                     first = np.full(ray_ids.size, np.inf, dtype=f32)
                     np.minimum.at(first, ray, entry)
                     now = entry <= first.take(ray)
@@ -985,7 +1045,8 @@ class BVH:
             ray = ray.take(pair)
             t = self.primitives.t_pairs(prim, o.take(ray, axis=1), d.take(ray, axis=1),
                                         None if time is None else time.take(ray))
-            ok = (is_hit(t) & (t < limit.take(ray)) & (t <= nearest.take(ray))).nonzero()[0]
+            # (t < limit is false for a miss, inf or NaN, whatever the limit)
+            ok = ((t < limit.take(ray)) & (t <= nearest.take(ray))).nonzero()[0]
             ray, t, prim = ray.take(ok), t.take(ok), prim.take(ok)
             if any_hit:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
@@ -1001,12 +1062,14 @@ class BVH:
         # rays'), rounded down; it matters for rays leaving a surface (shift 0), which start
         # inside the boxes of the primitives around their origin: on the 1M terrain it drops
         # a tenth of their exact tests.
-        floor = max(f32(0), np.nextafter(f32(T_MIN - shift.max()), f32(-np.inf)))  # float32_down, on a scalar
+        # (float32_down, on a scalar; the least of ray_floor where there is one: float32_down is monotone)
+        ray_floor = float32_floor(shift) if self.sphere_leaves else None
+        floor = max(f32(0), ray_floor.min() if ray_floor is not None else
+                    np.nextafter(f32(T_MIN - shift.max()), f32(-np.inf)))
         # ... and each ray's own, for the sphere pass (see sphere_slots), where one gather serves
         # a whole (leaf_size, P) pass: a bounce ray's exact test of the ball it leaves is
         # dropped only where T_MIN is its floor, while the batch's is 0 as soon as one of its
-        # rays comes from outside the tree
-        ray_floor = float32_down(T_MIN - shift) if self.sphere_leaves else None
+        # rays comes from outside the tree (made above)
         if self.node_major:
             def gather_columns(table, node):
                 """``table``'s rows ``node`` as columns: (R, P) from a node-major (K, R) table."""
@@ -1088,7 +1151,10 @@ class BVH:
                 node = node.take(keep, mode="wrap")
                 ray = ray.take(keep, mode="wrap")
                 if levels > 1 and not self.node_major:
-                    node = self.octant_below[levels].take(node)
+                    # a step onto the leaves of a complete tree gives their node numbers (what
+                    # test_leaves reads: no column -> node division), others columns
+                    onto_leaves = self.complete and depth + levels == self.first_leaf_depth
+                    node = (self.leaf_below if onto_leaves else self.octant_below)[levels].take(node)
                     node += keep // pairs
                     depth += levels - 1
                 elif levels > 1:
@@ -1109,8 +1175,8 @@ class BVH:
                 if depth < self.first_leaf_depth:
                     inner = None
                 elif depth == self.first_leaf_depth and self.complete:  # every pair is a leaf's
-                    test_leaves(ray, divmod_by(node, k)[1] if self.octants > 1 else node, entry.ravel().take(keep),
-                                rays_walking)
+                    test_leaves(ray, node if self.octants == 1 or levels > 1 else divmod_by(node, k)[1],
+                                entry.ravel(), keep, rays_walking)
                     ray = node = inner = ray[:0]
                 else:
                     is_leaf = self.octant_is_leaf.take(node)
@@ -1120,7 +1186,7 @@ class BVH:
                         leaf_node = node.take(leaf)
                         if self.octants > 1:
                             leaf_node = divmod_by(leaf_node, k)[1]  # column -> node
-                        test_leaves(ray.take(leaf), leaf_node, entry.ravel().take(keep.take(leaf)), rays_walking)
+                        test_leaves(ray.take(leaf), leaf_node, entry.ravel(), keep.take(leaf), rays_walking)
                         inner = (~is_leaf).nonzero()[0]
                         ray, node = ray.take(inner), node.take(inner)
                 if depth == stop:

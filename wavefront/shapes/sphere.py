@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, nearest_root,
+from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, key_root,
                         nearest_root_key, sphere_roots)
 from ..vecmath import gather
 from .base import ShapeKind
@@ -211,9 +211,13 @@ class SphereSet(ShapeKind):
 
     @staticmethod
     def exact_t(center, radius_squared, origin, direction):
-        """The first root past ``T_MIN`` (``inf`` or NaN for none): see
-        :func:`wavefront.geometry.sphere_roots` for why this arithmetic."""
-        return nearest_root(*sphere_roots(center, radius_squared, origin, direction))
+        """The first root past ``T_MIN`` (``inf`` for none): see
+        :func:`wavefront.geometry.sphere_roots` for why this arithmetic.  Through the
+        roots' keys (:func:`~wavefront.geometry.nearest_root_key`, as :meth:`key_block`):
+        the same roots as :func:`~wavefront.geometry.nearest_root`, in seven passes
+        instead of nine and without its error-state context (~6 against ~11 us for a
+        BVH batch's ~1,700 leaf tests)."""
+        return key_root(nearest_root_key(*sphere_roots(center, radius_squared, origin, direction)))
 
     def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = t * direction
