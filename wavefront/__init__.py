@@ -15,9 +15,10 @@ import sys as _sys
 # core from the import itself (0.10 s against 0.05 s, ~50 ms of CPU at every
 # command's start: W2's whole command ~5 % slower) and from the workers forked
 # after it.  Only if NumPy is not loaded yet, and only where the user has not
-# chosen: ``OPENBLAS_NUM_THREADS`` set beforehand is kept.
-if "numpy" not in _sys.modules:
-    _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# chosen: ``OPENBLAS_NUM_THREADS`` or ``OMP_NUM_THREADS`` (which OpenBLAS reads
+# when the first is unset) set beforehand is kept.
+if "numpy" not in _sys.modules and not {"OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"} & _os.environ.keys():
+    _os.environ["OPENBLAS_NUM_THREADS"] = "1"
 
 from . import distributed  # so wavefront.distributed.dask_executor works after "import wavefront"
 from .background import Sky, Solid

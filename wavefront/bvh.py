@@ -419,7 +419,8 @@ _FLOAT32_MAX = np.finfo(np.float32).max
 
 
 def float32_floor(shift: np.ndarray) -> np.ndarray:
-    """``float32_down(T_MIN - shift)`` for float64 ``shift >= 0`` (finite), the same numbers.
+    """``float32_down(T_MIN - shift)`` for ``shift >= 0`` (finite; float64, or float32 in a
+    float32 scene), the same numbers.
 
     ``np.nextafter`` costs ~3 ns an element (~25 us of a batch's 7,000 rays, this ~10):
     instead the float32 ``x`` of ``T_MIN - shift``, rounded to nearest, steps down by one
@@ -949,8 +950,9 @@ class BVH:
             """The bounding-sphere pass of spheres-only trees: a float32 test in
             the traversal's frame over all (leaf_size, P) (ray, sphere) slots
             keeps those whose line passes within a padded bounding radius and
-            whose span in that padded sphere overlaps [T_MIN, to_beat] (in the
-            traversal's frame); padding slots are NaN and never kept.
+            whose span in that padded sphere overlaps [T_MIN, to_beat] (T_MIN in
+            the ray's own frame, T_MIN - shift in the traversal's); padding slots
+            are NaN and never kept.
 
             The span's far end is the padded sphere's far root, ``h + sqrt(reach^2
             - |l|^2)``: a ray leaving a ball starts on it with that root at about 0,
@@ -958,7 +960,10 @@ class BVH:
             exact tests of W2's bounce rays were such).  Conservative as the rest of
             the pass: the LEAF_PAD pads in ``reach^2 - |l|^2`` (about 2 reach LEAF_PAD
             pads more than the true sphere's) put the computed root past the true one by
-            about LEAF_PAD pads, more than the float32 rounding of ``h`` and ``|l|``."""
+            about LEAF_PAD pads, more than the float32 rounding of ``h`` and ``|l|``.  A far
+            root that is NaN (squares of a radius past ~1.8e19 overflow float32 to inf, and
+            inf - inf) keeps its slot: the pass drops only what it can show is behind the
+            floor, and the exact test decides."""
             if self.node_major:
                 rows = gather_columns(self.leaf_rows32, node)  # (4 leaf_size, P)
                 center, reach = rows[:3 * self.leaf_size].reshape(3, self.leaf_size, -1), rows[3 * self.leaf_size:]
@@ -979,10 +984,10 @@ class BVH:
             distance2 += oc[2]
             reach2 = reach * reach
             candidate = distance2 <= reach2
-            with np.errstate(invalid="ignore"):  # NaN where the line passes beyond reach: not a candidate
+            with np.errstate(invalid="ignore"):  # NaN beyond reach (no candidate anyway), or inf - inf
                 far = np.sqrt(np.subtract(reach2, distance2, out=reach2), out=reach2)
             far += h
-            candidate &= far >= ray_floor.take(ray)
+            candidate &= ~(far < ray_floor.take(ray))  # not ">=": a NaN far root stays a candidate
             h -= reach
             candidate &= h <= to_beat.take(ray)
             slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf

@@ -421,11 +421,6 @@ def key_root(key):
     return root.view(float_type)
 
 
-def is_hit(t):
-    """Whether a root from :func:`nearest_root` is a hit (false for inf and NaN)."""
-    return t < np.inf
-
-
 def escaped_at_inf(best_t, hit, t_max):
     """``best_t`` with ``inf`` where nothing was hit.  Without a finite
     ``t_max`` it is already ``inf`` there, and an ``np.where`` over every ray

@@ -179,8 +179,8 @@ class SphereSet(ShapeKind):
     def any_hit_block(self, start, stop, origin, direction, t_max, time=None):
         """Whether a root of :func:`~wavefront.geometry.sphere_roots` lies in
         ``(T_MIN, t_max)`` for some sphere of ``start:stop``: the roots of
-        :meth:`t_block`, compared without choosing the nearest
-        (:func:`nearest_root`'s six passes).  ``nearest_root < t_max`` exactly
+        :meth:`t_block`, compared without choosing the nearest (as
+        :meth:`exact_t` does, through keys).  ``nearest_root < t_max`` exactly
         when either root is in the interval: the far root is never below the
         near one, so a near root at or past ``t_max`` leaves none.
 
