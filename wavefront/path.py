@@ -464,8 +464,7 @@ class HeldTasks:
     def __init__(self, first: Job):
         self.tasks = [first]
         self.job = first
-        # each held task's own path segments and shadow rays (see charge)
-        self.segments, self.shadow_rays = [0], [0]
+        self.counts = [TraceStats(samples=first.size)]  # each held task's own (see charge)
         # room for the held tasks twice over: the window is moved back to the
         # start (a copy of what it holds) once every few tasks, not every task
         self.store = np.zeros((3, 2 * HELD_TASKS * max(first.size, 1)))
@@ -481,20 +480,19 @@ class HeldTasks:
         samples they serve, by slot: each task's counts are its own paths',
         the same numbers as when it ran alone, and a task lost with a dead
         worker takes its counts with it."""
-        counts = self.shadow_rays if shadow_rays else self.segments
+        field = "shadow_rays" if shadow_rays else "segments"
         below, end = 0, 0
-        for i, task in enumerate(self.tasks[:-1]):  # a few held tasks, not rays
+        last = len(self.tasks) - 1
+        for i, (task, counts) in enumerate(zip(self.tasks, self.counts)):  # a few held tasks, not rays
             end += task.size
-            up_to = int(np.count_nonzero(slot < end))
-            counts[i] += up_to - below
+            up_to = slot.size if i == last else int(np.count_nonzero(slot < end))
+            setattr(counts, field, getattr(counts, field) + up_to - below)
             below = up_to
-        counts[-1] += slot.size - below
 
     def pop(self) -> tuple[Job, TraceStats]:
         """The oldest task and its counters, out (its radiance stays readable
         until the next :meth:`add`)."""
-        task = self.tasks.pop(0)
-        stats = TraceStats(segments=self.segments.pop(0), samples=task.size, shadow_rays=self.shadow_rays.pop(0))
+        task, stats = self.tasks.pop(0), self.counts.pop(0)
         self.start += task.size
         self.job = Job([u for t in self.tasks for u in t.units], task.width, task.samples_per_pixel)
         return task, stats
@@ -512,8 +510,7 @@ class HeldTasks:
             self.start = 0
         self.store[:, self.start + held:self.start + held + task.size] = 0.0
         self.tasks.append(task)
-        self.segments.append(0)
-        self.shadow_rays.append(0)
+        self.counts.append(TraceStats(samples=task.size))
         self.job = Job(self.job.units + task.units, task.width, task.samples_per_pixel)
 
 

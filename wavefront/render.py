@@ -447,8 +447,8 @@ def run_stream(units: list[Unit], receive, deliver, ask=None) -> None:
         return
     stream = _Stream(scene, receive, deliver, ask)
     with np.errstate(over="ignore", invalid="ignore"):  # as in execute
-        TRACERS[scene.render.integrator](w.compiled, stream.job(units), w.key, w.capacity, TraceStats(),
-                                         w.should_stop, stream=stream)
+        TRACERS[scene.render.integrator](w.compiled, stream.job(units), w.key, w.capacity, None, w.should_stop,
+                                         stream=stream)
     if w.should_stop is not None and w.should_stop():
         raise RenderInterrupted  # the tasks not yet delivered are incomplete
 
