@@ -6,7 +6,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .vecmath import true_rows
+from .vecmath import TAKE_MODE, true_rows
 
 
 @dataclass(slots=True)
@@ -46,14 +46,15 @@ class PathBatch:
     def take(self, idx: np.ndarray) -> PathBatch:
         """The paths at ``idx`` (indices or a mask), every field compacted alike.
 
-        ``np.take`` rather than fancy indexing: see :func:`wavefront.vecmath.gather`.
+        ``take`` rather than fancy indexing, and in its mode: see
+        :func:`wavefront.vecmath.gather`.
         """
         if idx.dtype == bool:
             idx = true_rows(idx)
         # the field names and the method ``take`` (not ``np.take``, a Python
         # wrapper): a few microseconds of every call, a bounce's fixed cost
         # when only a handful of paths are left
-        return PathBatch(*[None if (a := getattr(self, name)) is None else a.take(idx, axis=-1)
+        return PathBatch(*[None if (a := getattr(self, name)) is None else a.take(idx, axis=-1, mode=TAKE_MODE)
                            for name in _PATH_FIELDS])
 
     def fill(self, holes: np.ndarray, movers: np.ndarray, size: int) -> PathBatch:

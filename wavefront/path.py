@@ -68,7 +68,7 @@ from .sampling import (CROSSINGS_PER_SEGMENT, TIME_PAIR, Sampler, bounce_dimensi
 from .geometry import T_MIN
 from .scene import CompiledScene
 from .shapes import Hits
-from .vecmath import dot, gather, scatter, scatter_add, true_rows
+from .vecmath import TAKE_MODE, dot, gather, scatter, scatter_add, true_rows
 
 REFILL_FRACTION = 0.5  # refill once fewer than half the slots are live
 # Paths that escape are left in the batch, marked absorbed, while they are at
@@ -301,7 +301,7 @@ class KernelGroups:
 
     def of(self, primitive_idx) -> np.ndarray:
         """``(N,)`` int8: each row's group, -1 for a miss."""
-        return self.of_hit.take(primitive_idx + 1)
+        return self.of_hit.take(primitive_idx + 1, mode=TAKE_MODE)
 
     def mixed(self, group) -> bool:
         """Whether the groups other than the largest hold at least
@@ -589,7 +589,7 @@ def intersect_with_shadows(cs: CompiledScene, live: PathBatch, shadows: ShadowBa
                                np.concatenate((np.full(n, np.inf, dtype=shadows.t_max.dtype), shadows.t_max)),
                                time=None if live.time is None else np.concatenate((live.time, shadows.time)))
     visible = true_rows(hits.primitive_idx[n:] < 0)
-    scatter_add(radiance, shadows.slot.take(visible), gather(shadows.contribution, visible))
+    scatter_add(radiance, gather(shadows.slot, visible), gather(shadows.contribution, visible))
     return Hits(hits.t[:n], hits.primitive_idx[:n])
 
 
@@ -619,7 +619,7 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGr
     t, primitive_idx = hits.t, hits.primitive_idx
     gone = runs = None
     if esc_idx.size:
-        scatter_add(radiance, live.slot.take(esc_idx),
+        scatter_add(radiance, gather(live.slot, esc_idx),
                     gather(live.throughput, esc_idx) * cs.scene.background.radiance(gather(live.direction, esc_idx)))
         group = None if groups is None else groups.of(primitive_idx)
         if (cs.media is None and esc_idx.size <= ESCAPED_KEPT_FRACTION * len(live)
@@ -632,7 +632,7 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGr
                 hit_idx = true_rows(primitive_idx >= 0)
             else:
                 hit_idx, runs = groups.order(group)
-            live, t, primitive_idx = live.take(hit_idx), t.take(hit_idx), primitive_idx.take(hit_idx)
+            live, t, primitive_idx = live.take(hit_idx), gather(t, hit_idx), gather(primitive_idx, hit_idx)
     if len(live) == 0:
         return live, None, None, None
     surface = cs.shapes.surface(live.origin, live.direction, t, primitive_idx, uv=cs.materials.needs_uv, time=live.time)
@@ -724,7 +724,7 @@ def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None
         value = gather(live.throughput, sel) * color
         if emitters is not None:
             value *= emission_weight(emitters, live, surface, sel)
-        scatter_add(radiance, live.slot.take(sel), value)
+        scatter_add(radiance, gather(live.slot, sel), value)
     return absorbed
 
 
@@ -838,7 +838,7 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     if shadows.media_mask is not None:
         contribution *= shadow_transmittance(cs, gather(shadows.origin, visible), gather(shadows.direction, visible),
                                              shadows.t_max.take(visible), shadows.media_mask.take(visible))
-    scatter_add(radiance, shadows.slot.take(visible), contribution)
+    scatter_add(radiance, gather(shadows.slot, visible), contribution)
 
 
 def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, surface, absorbed, albedo=None,
@@ -965,16 +965,16 @@ def russian_roulette(sampler: Sampler, live: PathBatch, absorbed, start_depth: i
     # every row's survival (no gathers of the throughput), the rows' read
     survival = _max_reduce(live.throughput, axis=0) * live.eta_scale
     np.minimum(survival, ROULETTE_MAX_SURVIVAL, out=survival)
-    u = sampler.uniform(live.state.take(rows), light_choice_dimension(live.depth.take(rows)), 1)
-    survive = u < survival.take(rows)
+    u = sampler.uniform(gather(live.state, rows), light_choice_dimension(gather(live.depth, rows)), 1)
+    survive = u < gather(survival, rows)
     absorbed[rows] = ~survive  # every row was still alive: only the ended become True
     # the survivors' throughput divided by their survival over the whole
     # batch, the others' by 1.0 (exact): no gather and scatter of the
     # survivors' columns; in float64, rounded once to the throughput's type
     # as the scatter of the quotient was
-    kept = rows.take(true_rows(survive))
+    kept = gather(rows, true_rows(survive))
     divisor = np.ones(len(live))
-    divisor[kept] = survival.take(kept)
+    divisor[kept] = gather(survival, kept)
     live.throughput /= divisor
     return absorbed
 
