@@ -76,7 +76,7 @@ class PathBatch:
             if a is None:
                 continue
             for row in (a if a.ndim == 2 else (a,)):  # a (3, N) field row by row: see vecmath.scatter
-                row[holes] = row.take(movers)
+                row[holes] = row.take(movers, mode=TAKE_MODE)
             setattr(self, name, a[:size] if a.ndim == 1 else np.ascontiguousarray(a[:, :size]))
         return self
 

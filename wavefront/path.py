@@ -241,11 +241,11 @@ def _lambertian(table, m, d, n, front_face, u, albedo=None, out=None):
 
 def _metal(table, m, d, n, front_face, u, albedo=None, out=None):
     return scatter_metal(d, n, front_face, gather(table.albedo, m) if albedo is None else albedo,
-                         table.fuzz.take(m), u, out)
+                         gather(table.fuzz, m), u, out)
 
 
 def _dielectric(table, m, d, n, front_face, u, albedo=None, out=None):
-    return scatter_dielectric(d, n, front_face, table.refraction_index.take(m), u, out)
+    return scatter_dielectric(d, n, front_face, gather(table.refraction_index, m), u, out)
 
 
 # Which material kinds each scatter kernel serves.  Phong surfaces are
@@ -388,13 +388,13 @@ def trace_paths(cs: CompiledScene, job: Job, key, capacity: int, stats: TraceSta
             drawn = draw_together(cs, sampler, live, emitters, roulette)
             # each hit's material kind, taken once a bounce where a stage reads
             # it (grouped rows and no emitter: none does)
-            kind = table.kind.take(surface.material_idx) if lit or runs is None else None
+            kind = gather(table.kind, surface.material_idx) if lit or runs is None else None
             if lit:
                 absorbed = emitted(cs, live, surface, radiance, emitters, gone, kind)
             else:  # emitted's answer where no primitive emits
                 absorbed = np.zeros(len(live), dtype=bool) if gone is None else gone.copy()
             # read by light sampling and MIS (the paths' specular) only
-            diffuse = diffuse_material.take(surface.material_idx) if mis else None
+            diffuse = gather(diffuse_material, surface.material_idx) if mis else None
             albedo = surface_albedo(cs, surface)
             if emitters is not None:
                 # one any-hit query for the shadow rays of medium and surface vertices alike
@@ -619,8 +619,13 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGr
     t, primitive_idx = hits.t, hits.primitive_idx
     gone = runs = None
     if esc_idx.size:
-        scatter_add(radiance, gather(live.slot, esc_idx),
-                    gather(live.throughput, esc_idx) * cs.scene.background.radiance(gather(live.direction, esc_idx)))
+        seen = gather(live.throughput, esc_idx)
+        light = cs.scene.background.radiance(gather(live.direction, esc_idx))
+        if seen.dtype == np.result_type(seen, light):
+            seen *= light  # throughput * background in the gathered array
+        else:
+            seen = seen * light
+        scatter_add(radiance, gather(live.slot, esc_idx), seen)
         group = None if groups is None else groups.of(primitive_idx)
         if (cs.media is None and esc_idx.size <= ESCAPED_KEPT_FRACTION * len(live)
                 and (group is None or not groups.mixed(group))):
@@ -709,14 +714,14 @@ def emitted(cs: CompiledScene, live: PathBatch, surface, radiance, emitters=None
     emissive = table.code("emissive")
     if not (table.kind == emissive).any():
         return absorbed
-    on_emitter = (table.kind.take(surface.material_idx) if kind is None else kind) == emissive
+    on_emitter = (gather(table.kind, surface.material_idx) if kind is None else kind) == emissive
     if gone is not None:
         on_emitter &= ~gone
     sel = true_rows(on_emitter)
     if sel.size:
         absorbed[sel] = True
-        sel = sel[surface.front_face.take(sel)]
-        m = surface.material_idx.take(sel)
+        sel = sel[gather(surface.front_face, sel)]
+        m = gather(surface.material_idx, sel)
         if table.textures is None:
             color = gather(table.emission, m)
         else:
@@ -745,15 +750,15 @@ def emission_weight(emitters, live: PathBatch, surface, sel) -> np.ndarray:
     of the material's pdf against the light sample's (from the previous vertex,
     which is the ray's origin)."""
     weight = np.ones(sel.size)
-    e = emitters.emitter_of.take(surface.primitive_idx.take(sel))
+    e = gather(emitters.emitter_of, gather(surface.primitive_idx, sel))
     # a black emitter is not in the table (e = -1): it adds nothing, at any weight
-    diffuse = true_rows(~live.specular.take(sel) & (e >= 0))
+    diffuse = true_rows(~gather(live.specular, sel) & (e >= 0))
     if diffuse.size:
-        rows = sel.take(diffuse)
-        e = e.take(diffuse)
+        rows = gather(sel, diffuse)
+        e = gather(e, diffuse)
         p_light = emitters.pdf(e, gather(live.origin, rows), gather(surface.point, rows),
-                               None if live.time is None else live.time.take(rows))
-        weight[diffuse] = mis_weight(live.bsdf_pdf.take(rows), p_light)
+                               None if live.time is None else gather(live.time, rows))
+        weight[diffuse] = mis_weight(gather(live.bsdf_pdf, rows), p_light)
     return weight
 
 
@@ -782,14 +787,14 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     """
     rows = true_rows(diffuse & ~absorbed & (live.depth + 1 < max_depth))
     u_point, u_choice = light_uniforms(sampler, emitters, live, rows, drawn)
-    time = None if live.time is None else live.time.take(rows)
+    time = None if live.time is None else gather(live.time, rows)
     light = emitters.sample(gather(surface.point, rows), u_choice, u_point, time)
     normal = gather(surface.normal, rows)
     p_material = lambertian_pdf(normal, light.direction)
     carries = light.carries if light.carries is not None else light.radiance.max(axis=0) > 0.0
     ok = true_rows((p_material > 0.0) & carries)
-    rows, pdf, p_material = rows.take(ok), light.pdf.take(ok), p_material.take(ok)
-    albedo = gather(cs.materials.albedo, surface.material_idx.take(rows)) if albedo is None else gather(albedo, rows)
+    rows, pdf, p_material = gather(rows, ok), gather(light.pdf, ok), gather(p_material, ok)
+    albedo = gather(cs.materials.albedo, gather(surface.material_idx, rows)) if albedo is None else gather(albedo, rows)
     f_cos = albedo * p_material  # lambertian_eval's value: its pdf is the one just taken
     if len(emitters) == 1 and emitters.texture is None:
         # one untextured emitter: every sample that carries light has its
@@ -804,10 +809,10 @@ def sample_lights(cs: CompiledScene, sampler: Sampler, emitters, live: PathBatch
     weight /= pdf
     contribution *= weight
     return ShadowBatch(origin=gather(surface.point, rows), direction=gather(light.direction, ok).astype(cs.dtype, copy=False),
-                       t_max=(light.distance.take(ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
-                       contribution=contribution, slot=live.slot.take(rows),
-                       time=None if time is None else time.take(ok),
-                       media_mask=None if live.media_mask is None else live.media_mask.take(rows))
+                       t_max=(gather(light.distance, ok) * (1.0 - SHADOW_EPSILON)).astype(cs.dtype, copy=False),
+                       contribution=contribution, slot=gather(live.slot, rows),
+                       time=None if time is None else gather(time, ok),
+                       media_mask=None if live.media_mask is None else gather(live.media_mask, rows))
 
 
 def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows, drawn: DrawnUniforms | None = None):
@@ -819,8 +824,8 @@ def light_uniforms(sampler: Sampler, emitters, live: PathBatch, rows, drawn: Dra
     sampling holds the most memory of any stage, and a fresh worker faults
     in every page of its peak."""
     if drawn is not None:
-        return gather(drawn.light_point, rows), None if len(emitters) == 1 else drawn.light_choice[0].take(rows)
-    state, depth = live.state.take(rows), live.depth.take(rows)
+        return gather(drawn.light_point, rows), None if len(emitters) == 1 else gather(drawn.light_choice[0], rows)
+    state, depth = gather(live.state, rows), gather(live.depth, rows)
     u_point = sampler.pairs(state, light_point_dimension(depth))
     if len(emitters) == 1:
         return u_point, None
@@ -837,7 +842,7 @@ def trace_shadow_rays(cs: CompiledScene, shadows: ShadowBatch, radiance, stats: 
     contribution = gather(shadows.contribution, visible)
     if shadows.media_mask is not None:
         contribution *= shadow_transmittance(cs, gather(shadows.origin, visible), gather(shadows.direction, visible),
-                                             shadows.t_max.take(visible), shadows.media_mask.take(visible))
+                                             gather(shadows.t_max, visible), gather(shadows.media_mask, visible))
     scatter_add(radiance, gather(shadows.slot, visible), contribution)
 
 
@@ -875,8 +880,8 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
                     absorbed[run] |= dead
         return direction, absorbed
     if kind is None:
-        kind = table.kind.take(material)
-    routes = [(true_rows(np.isin(table.kind, codes).take(material) if len(codes) > 1 else kind == codes[0]), kernel)
+        kind = gather(table.kind, material)
+    routes = [(true_rows(gather(np.isin(table.kind, codes), material) if len(codes) > 1 else kind == codes[0]), kernel)
               for codes, kernel in kernels]
     routes = [(sel, kernel) for sel, kernel in routes if sel.size]
     if albedo is None and routes:
@@ -889,8 +894,8 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         att, direction, dead = routes[main][1](table, material, live.direction, normal, front_face, u)
         for k, (sel, kernel) in enumerate(routes):
             if k != main:
-                a, d, dd = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
-                                  front_face.take(sel), gather(u, sel))
+                a, d, dd = kernel(table, gather(material, sel), gather(live.direction, sel), gather(normal, sel),
+                                  gather(front_face, sel), gather(u, sel))
                 scatter(att, sel, a)
                 scatter(direction, sel, d)
                 dead[sel] = dd
@@ -898,11 +903,11 @@ def scatter_hits(cs: CompiledScene, sampler: Sampler, kernels, live: PathBatch, 
         return direction, absorbed | dead
     direction = live.direction  # overwritten row by row below
     for sel, kernel in routes:
-        att, d, dead = kernel(table, material.take(sel), gather(live.direction, sel), gather(normal, sel),
-                              front_face.take(sel), gather(u, sel), None if albedo is None else gather(albedo, sel))
+        att, d, dead = kernel(table, gather(material, sel), gather(live.direction, sel), gather(normal, sel),
+                              gather(front_face, sel), gather(u, sel), None if albedo is None else gather(albedo, sel))
         scatter(live.throughput, sel, gather(live.throughput, sel) * att)
         scatter(direction, sel, d)
-        absorbed[sel] = dead | absorbed.take(sel)  # an escaped path left in the batch stays absorbed
+        absorbed[sel] = dead | gather(absorbed, sel)  # an escaped path left in the batch stays absorbed
     return direction, absorbed
 
 
@@ -936,18 +941,18 @@ def record_sampling(cs: CompiledScene, live: PathBatch, surface, diffuse, direct
         through = true_rows(dot(surface.normal[:, start:stop], direction[:, start:stop]) < 0.0)
         through += start
         if through.size:
-            index = table.refraction_index.take(surface.material_idx.take(through)).astype(np.float64)
-            eta = np.where(surface.front_face.take(through), index, 1.0 / index)  # n_transmitted / n_incident
+            index = gather(table.refraction_index, gather(surface.material_idx, through)).astype(np.float64)
+            eta = np.where(gather(surface.front_face, through), index, 1.0 / index)  # n_transmitted / n_incident
             live.eta_scale[through] *= eta * eta
         return
     if kind is None:
-        kind = table.kind.take(surface.material_idx)
+        kind = gather(table.kind, surface.material_idx)
     glass = true_rows(kind == table.code("dielectric"))
     if glass.size:
         # a transmitted direction leaves on the far side of the (ray-facing) normal
-        through = glass.take(true_rows(dot(gather(surface.normal, glass), gather(direction, glass)) < 0.0))
-        index = table.refraction_index.take(surface.material_idx.take(through)).astype(np.float64)
-        eta = np.where(surface.front_face.take(through), index, 1.0 / index)  # n_transmitted / n_incident
+        through = gather(glass, true_rows(dot(gather(surface.normal, glass), gather(direction, glass)) < 0.0))
+        index = gather(table.refraction_index, gather(surface.material_idx, through)).astype(np.float64)
+        eta = np.where(gather(surface.front_face, through), index, 1.0 / index)  # n_transmitted / n_incident
         live.eta_scale[through] *= eta * eta
 
 
