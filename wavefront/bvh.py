@@ -98,8 +98,17 @@ LEAF_ROUNDS_ABOVE = 2
 # against 8192, interleaved in one process on the shared 2-core machine:
 # intersection 13-15 % faster on W2, the 1k- and the 1M-triangle terrain
 # (2048 was within noise of 4096); but whole W2 renders in one process were
-# ~3 % faster at 8192, so small trees keep it.
-TRAVERSAL_BATCH = 8192
+# ~3 % faster at 8192, so small trees kept it.  Session 10, with the renderer's allocator
+# settings (render.tune_allocator) and a call cut into batches of equal size (a call of
+# 8,193 rays made a batch of 1): 16384 is faster again, each batch's ~250 NumPy calls
+# (~1-2 us each whatever their size) shared by twice the rays.  W2's cover scene, its
+# recorded intersect calls of a 600x338 render (up to 65,536 rays a call) replayed in one
+# process, main's tree and this one alternating, 15 reps: 225 against 236 ns a ray, faster
+# in all 15 (12288: 234 against 245; 32768 without equal batches: 4 % slower); renders on
+# one worker (abcpu.sh, CPU medians): 600x338 16 spp 3.18 against 3.32 s, W2 (400x225 10
+# spp) 0.97 against 1.01.  The outsized brute force kept at 8,192 rays a call inside a
+# batch: no faster (-4.2 against -4.4 %).
+TRAVERSAL_BATCH = 16384
 # Node-major trees: at 4096 the 1M-triangle terrain rendered ~10 % faster than at 8192 while
 # every slab test wrote eight fresh arrays; with the reductions in place and the transposed
 # copies folded into the subtraction (session 6), 8192 is ~4 % faster than 4096 (intersection
@@ -783,6 +792,7 @@ class BVH:
         batch = TRAVERSAL_BATCH_BIG if self.node_major else TRAVERSAL_BATCH
         if n <= batch:
             return query(origin, direction, t_max, time)
+        batch = -(-n // -(-n // batch))  # as few batches as `batch` allows, of equal sizes (see TRAVERSAL_BATCH)
         # a scalar t_max (the paths' rays: inf) stays one, so that each batch's answer skips
         # escaped_at_inf's np.where over its rays, and brute force its copy of t_max (~20 us
         # a batch of 8,192; W2's renders pass every bounce's rays at once)
