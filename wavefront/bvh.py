@@ -360,6 +360,30 @@ SMALL_STEP_LEVELS = 2
 # - small trees' boxes node-major now that W2 walks two axes (a node's 16 planes, one 64-byte
 #   line, gathered as rows; the transposed copy in the subtraction): 262-279 against 59-62 us
 #   for 7,500 pairs (a 64-byte void gather no better).
+# Session 10 (W2's cover scene: the BVH.intersect calls of a 600x338 1 spp render, 514,680 rays
+# in calls of up to 65,536 as at W3's wavefront size, replayed in one process through the
+# committed module and the changed one over the same primitives, alternating, CPU ns a ray,
+# medians of 11-21; the replay calls render.tune_allocator as workers do: without it the same
+# calls took ~25 % longer and every big temporary page-faulted).  Where the time goes (timers
+# around each phase, ~216 ns a ray): the outsized brute force 48, the set-up and root clip 37,
+# the walk's four two-level steps 84 (~0.76-1.05 pairs a ray each; the box gather ~0.55 ns a
+# plane, ~1.5x its cost in isolation), the leaves 37 (the exact tests 9: 0.29 a ray, nearly all
+# hits), the end 7.  Kept: TRAVERSAL_BATCH 16384 in batches of equal size (see there).  Tried:
+# - the descendants' columns made for every pair ((2^levels, P) = first + rank) and the kept
+#   ones taken, instead of k // pairs on the kept indices: 1.012, then 0.999 at 16384;
+# - to_beat as a row of the walk's float32 ray table (one gather a step for a pair's origin,
+#   reciprocals and bound): 0.997;
+# - SPHERE_LEAF_SIZE 8 (three steps, a sphere pass over 8 slots): 1.110; SMALL_STEP_LEVELS 3
+#   (0 -> 2 -> 5 -> 8): 1.067; TRAVERSAL_BATCH 24576: 1.021, 32768 (unequal batches): 1.044;
+#   LEAF_ROUNDS_ABOVE 1000 (no leaf rounds): 0.995 (noise);
+# - the outsized brute force in calls of 8,192 rays inside a 16,384-ray batch: 0.958 against
+#   0.956 for one call.
+# In isolation (12,000 pairs): gathering the 16 planes of one octant's 511 columns takes ~70 us,
+# of all eight octants' ~104-128: rays sorted by octant would save ~3 ns a pair step, less than
+# the sort and the un-permuting cost; and rows (one 64-byte line a pair) with a transposed copy
+# stay slower than columns even with L2 evicted (70-77 against 56 us for 6,000 pairs).  cProfile
+# (where_time_goes.py) puts ~0.1 s of a W2 render on float32_floor at 16,384-ray batches; timers
+# around its lines in a plain render show 4.5 ms, as at 8,192: a profiler artefact.
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
