@@ -98,8 +98,17 @@ LEAF_ROUNDS_ABOVE = 2
 # against 8192, interleaved in one process on the shared 2-core machine:
 # intersection 13-15 % faster on W2, the 1k- and the 1M-triangle terrain
 # (2048 was within noise of 4096); but whole W2 renders in one process were
-# ~3 % faster at 8192, so small trees keep it.
-TRAVERSAL_BATCH = 8192
+# ~3 % faster at 8192, so small trees kept it.  Session 10, with the renderer's allocator
+# settings (render.tune_allocator) and a call cut into batches of equal size (a call of
+# 8,193 rays made a batch of 1): 16384 is faster again, each batch's ~250 NumPy calls
+# (~1-2 us each whatever their size) shared by twice the rays.  W2's cover scene, its
+# recorded intersect calls of a 600x338 render (up to 65,536 rays a call) replayed in one
+# process, main's tree and this one alternating, 15 reps: 225 against 236 ns a ray, faster
+# in all 15 (12288: 234 against 245; 32768 without equal batches: 4 % slower); renders on
+# one worker (abcpu.sh, CPU medians): 600x338 16 spp 3.18 against 3.32 s, W2 (400x225 10
+# spp) 0.97 against 1.01.  The outsized brute force kept at 8,192 rays a call inside a
+# batch: no faster (-4.2 against -4.4 %).
+TRAVERSAL_BATCH = 16384
 # Node-major trees: at 4096 the 1M-triangle terrain rendered ~10 % faster than at 8192 while
 # every slab test wrote eight fresh arrays; with the reductions in place and the transposed
 # copies folded into the subtraction (session 6), 8192 is ~4 % faster than 4096 (intersection
@@ -351,6 +360,30 @@ SMALL_STEP_LEVELS = 2
 # - small trees' boxes node-major now that W2 walks two axes (a node's 16 planes, one 64-byte
 #   line, gathered as rows; the transposed copy in the subtraction): 262-279 against 59-62 us
 #   for 7,500 pairs (a 64-byte void gather no better).
+# Session 10 (W2's cover scene: the BVH.intersect calls of a 600x338 1 spp render, 514,680 rays
+# in calls of up to 65,536 as at W3's wavefront size, replayed in one process through the
+# committed module and the changed one over the same primitives, alternating, CPU ns a ray,
+# medians of 11-21; the replay calls render.tune_allocator as workers do: without it the same
+# calls took ~25 % longer and every big temporary page-faulted).  Where the time goes (timers
+# around each phase, ~216 ns a ray): the outsized brute force 48, the set-up and root clip 37,
+# the walk's four two-level steps 84 (~0.76-1.05 pairs a ray each; the box gather ~0.55 ns a
+# plane, ~1.5x its cost in isolation), the leaves 37 (the exact tests 9: 0.29 a ray, nearly all
+# hits), the end 7.  Kept: TRAVERSAL_BATCH 16384 in batches of equal size (see there).  Tried:
+# - the descendants' columns made for every pair ((2^levels, P) = first + rank) and the kept
+#   ones taken, instead of k // pairs on the kept indices: 1.012, then 0.999 at 16384;
+# - to_beat as a row of the walk's float32 ray table (one gather a step for a pair's origin,
+#   reciprocals and bound): 0.997;
+# - SPHERE_LEAF_SIZE 8 (three steps, a sphere pass over 8 slots): 1.110; SMALL_STEP_LEVELS 3
+#   (0 -> 2 -> 5 -> 8): 1.067; TRAVERSAL_BATCH 24576: 1.021, 32768 (unequal batches): 1.044;
+#   LEAF_ROUNDS_ABOVE 1000 (no leaf rounds): 0.995 (noise);
+# - the outsized brute force in calls of 8,192 rays inside a 16,384-ray batch: 0.958 against
+#   0.956 for one call.
+# In isolation (12,000 pairs): gathering the 16 planes of one octant's 511 columns takes ~70 us,
+# of all eight octants' ~104-128: rays sorted by octant would save ~3 ns a pair step, less than
+# the sort and the un-permuting cost; and rows (one 64-byte line a pair) with a transposed copy
+# stay slower than columns even with L2 evicted (70-77 against 56 us for 6,000 pairs).  cProfile
+# (where_time_goes.py) puts ~0.1 s of a W2 render on float32_floor at 16,384-ray batches; timers
+# around its lines in a plain render show 4.5 ms, as at 8,192: a profiler artefact.
 # Where the time goes on the 1M terrain (session 5; per segment, ~2040 ns in the tree): the walk's slab tests ~640
 # (gathers of the boxes ~400 of it), its pair bookkeeping ~80, the leaf box pass ~480 (3.75
 # leaves of 8 slots a segment), the plane pass ~200 (5.4 slots), the exact tests ~270 (1.9,
@@ -783,6 +816,7 @@ class BVH:
         batch = TRAVERSAL_BATCH_BIG if self.node_major else TRAVERSAL_BATCH
         if n <= batch:
             return query(origin, direction, t_max, time)
+        batch = -(-n // -(-n // batch))  # as few batches as `batch` allows, of equal sizes (see TRAVERSAL_BATCH)
         # a scalar t_max (the paths' rays: inf) stays one, so that each batch's answer skips
         # escaped_at_inf's np.where over its rays, and brute force its copy of t_max (~20 us
         # a batch of 8,192; W2's renders pass every bounce's rays at once)
