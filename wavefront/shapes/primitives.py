@@ -407,8 +407,10 @@ class Primitives:
         ``uv`` computes surface coordinates too (only image textures read
         them, and for spheres they cost two transcendental functions per hit).
         """
+        # the tables' gathers below want intp indices: cast once, not in each take
+        rows = idx.astype(np.intp)
         if len(self.kinds) == 1:
-            point, outward, shading, coords = self.kinds[0].surface(idx, origin, direction, t, uv, time)
+            point, outward, shading, coords = self.kinds[0].surface(rows, origin, direction, t, uv, time)
         else:
             n = idx.shape[0]
             point = np.empty((3, n), dtype=origin.dtype)
@@ -427,11 +429,14 @@ class Primitives:
                 if uv:
                     coords[:, sel] = c
         front_face = dot(direction, outward) < 0.0
-        sign = 2 * front_face.astype(outward.dtype) - 1  # flip to face the ray; cheaper than a (3, N) where
+        # 1 or -1, to flip the normals to face the ray (cheaper than a (3, N) where), in place
+        sign = front_face.astype(outward.dtype)
+        sign *= 2
+        sign -= 1
         normal = None if shading is outward else shading * sign
         # flipped in place: every kind's outward normals are a new array of
         # its own (gathered from its table or computed), as is the one above
         geometric = np.multiply(outward, sign, out=outward)
         normal = geometric if normal is None else normal
         return SurfaceHits(point=point, normal=normal, geometric_normal=geometric, front_face=front_face,
-                           material_idx=self.material_idx.take(idx), primitive_idx=idx, uv=coords)
+                           material_idx=self.material_idx.take(rows), primitive_idx=idx, uv=coords)
