@@ -415,6 +415,33 @@ def nearest_root_key(h, sqrt_disc):
     return np.minimum(near, far, out=near)
 
 
+def roots_key(a, b=None):
+    """:func:`nearest_root_key` of roots already formed: each root's key, or
+    the smaller key of ``a``'s and ``b``'s (roots in either order), the
+    nearest of the two past ``T_MIN``.  Overwrites ``a`` and ``b`` (their
+    bits become the keys) and returns the keys, a view of ``a``."""
+    bits, first, _ = _ROOT_KEYS[a.dtype]
+    key = a.view(bits)
+    key -= first
+    if b is None:
+        return key
+    other = b.view(bits)
+    other -= first
+    return np.minimum(key, other, out=key)
+
+
+def limit_key(t_max):
+    """The key (see :func:`nearest_root_key`) below which a root of
+    ``t_max``'s type lies in ``(T_MIN, t_max)``: ``key < limit_key(t_max)``
+    exactly when ``T_MIN < root < t_max``, and 0 (nothing below it) where
+    that interval is empty or ``t_max`` is NaN.  ``t_max``: an array of
+    float32 or float64, any shape; returns a new array of its shape."""
+    bits, first, _ = _ROOT_KEYS[t_max.dtype]
+    key = np.subtract(t_max.view(bits), first)
+    key *= t_max > T_MIN  # compared in t_max's type, as the roots are
+    return key
+
+
 def key_root(key):
     """The root of each :func:`nearest_root_key` key (of ``dtype`` float32 or
     float64 by the key's width), bit for bit :func:`nearest_root`'s where
