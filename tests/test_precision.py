@@ -143,6 +143,31 @@ def test_anchored_float32_hits_lie_on_the_float64_spheres():
     assert (np.abs(origin).max(axis=0) > FLOAT32_EXTENT).any() and ray.size > n
 
 
+@pytest.mark.parametrize("far_out", [False, True])
+def test_anchored_keys_give_the_anchored_roots_bit_for_bit(far_out):
+    """Brute force keys an anchored set's roots (key_block): each ray's
+    nearest root and the spheres at it are t_block's, bit for bit, for rays
+    in the room (T_MIN) and with some far out (a t_min of their own)."""
+    spheres = cornell_spheres().compile().shapes.kinds[0]
+    assert spheres.anchored
+    rng = np.random.default_rng(11)
+    n, m = 6000, len(spheres)
+    origin = rng.uniform(-0.95, 0.95, (3, n))
+    if far_out:
+        origin[:, :600] *= rng.uniform(1, 900, 600)  # beyond FLOAT32_EXTENT
+    origin = origin.astype(np.float32)
+    direction = normalize(rng.normal(size=(3, n))).astype(np.float32)
+    keys = spheres.key_block(0, m, origin, direction)
+    t = spheres.t_block(0, m, origin, direction)
+    nearest = np.fmin.reduce(t, axis=0)
+    hit = nearest < np.inf
+    got = key_root(np.minimum.reduce(keys, axis=0))
+    np.testing.assert_array_equal(got[hit].view(np.uint32), nearest[hit].view(np.uint32))
+    assert np.all(got[~hit] == np.inf) and hit.mean() > 0.5
+    np.testing.assert_array_equal((keys == keys.min(axis=0))[:, hit], (t == nearest)[:, hit])
+    assert (np.abs(origin).max(axis=0) > FLOAT32_EXTENT).any() == far_out
+
+
 def test_first_root_is_nearest_root_on_haines_roots():
     """The anchored test's root choice is nearest_root's arithmetic on any pair of roots."""
     rng = np.random.default_rng(2)

@@ -12,6 +12,8 @@ same primitive at exactly the same ``t``.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..geometry import BLOCK_ELEMENTS, escaped_at_inf, key_root
@@ -138,6 +140,17 @@ class SlabFilter:
         return ray, slot - ray * m
 
 
+@functools.lru_cache(maxsize=64)
+def _row_scores(m: int) -> np.ndarray:
+    """``(m, 1)``: ``m - row`` for each row of a block of ``m`` primitives, in
+    the narrowest unsigned type that holds ``m`` (brute force's scores: the
+    greatest score at a ray's minimum is its lowest row there)."""
+    score_type = np.uint8 if m <= 255 else np.uint16 if m <= 65535 else np.uint32
+    scores = np.arange(m, 0, -1, dtype=score_type)[:, None]
+    scores.flags.writeable = False  # shared by every call
+    return scores
+
+
 class Primitives:
     """The scene's shape sets, in kind order, with one index space.
 
@@ -235,7 +248,7 @@ class Primitives:
         """Nearest hit with ``T_MIN < t < t_max`` for every ray, by brute force.
 
         The nearest primitive of a block is found with a ``min`` reduction and
-        a least rank (lowest index wins a tie) rather than ``argmin``, a
+        a greatest score (lowest index wins a tie) rather than ``argmin``, a
         slow, branchy loop along the first axis.  Flat primitives are tested
         exactly only where their :class:`SlabFilter` lets a pair through.
 
@@ -252,26 +265,29 @@ class Primitives:
             (the BVH's outsized primitives).
         """
         n = origin.shape[1]
-        # the same numbers as broadcasting t_max (np.full casts a scalar as
-        # asarray would), without broadcast_to's few microseconds of Python
-        best_t = (np.full(n, t_max, dtype=origin.dtype) if np.ndim(t_max) == 0
-                  else np.array(t_max, dtype=origin.dtype).reshape(n))
-        # int32, what Hits holds (every scene-wide index fits: they were cast so before)
-        best_idx = np.full(n, -1, dtype=np.int32)
+        scalar_limit = np.ndim(t_max) == 0
+        # t_max in the rays' type: a scalar as np.full would cast it, or an (N,) copy
+        limit = origin.dtype.type(t_max) if scalar_limit else np.array(t_max, dtype=origin.dtype).reshape(n)
+        # Until a block has hit, best_t is the limit and best_idx -1 everywhere:
+        # both are made when first needed (the first keyed block writes them
+        # whole, with no np.full, no fmin against the limit, and no masked add).
+        best_t = best_idx = None
         rays32 = SlabFilter.rays(origin, direction, t_max) if self._filtered(origin) else None
-        untouched = True  # best_idx is still -1 everywhere
         for kind, slab, offset, start, stop in self._blocks(n):
             if slab is not None and rays32 is not None:
                 ray, j = slab.pairs(start, stop, rays32)
                 if ray.size == 0:
                     continue
+                if best_t is None:
+                    # the same numbers as broadcasting t_max (np.full casts a scalar as asarray would)
+                    best_t = np.full(n, limit) if scalar_limit else limit
+                    best_idx = np.full(n, -1, dtype=np.int32)  # int32, what Hits holds
                 t = kind.t_pairs(start + j, origin.take(ray, axis=1), direction.take(ray, axis=1),
                                  None if time is None else time.take(ray))
                 # strict, as below: an earlier block keeps a tie
                 keep = true_rows(t < best_t.take(ray))
                 if keep.size == 0:
                     continue
-                untouched = False
                 ray, j, t = ray.take(keep), j.take(keep), t.take(keep)
                 if not (ray[1:] == ray[:-1]).any():  # one pair per ray (the usual case)
                     best_t[ray] = t
@@ -287,36 +303,44 @@ class Primitives:
             # a kind with keyed roots (spheres): the least key is the nearest
             # hit, and the keys rank the primitives as their roots would
             t = kind.key_block(start, stop, origin, direction, time)
-            if t is not None:
+            keyed = t is not None
+            if keyed:
                 nearest = np.minimum.reduce(t, axis=0)
-                t_block = key_root(nearest)
+                t_block = key_root(nearest)  # inf where nothing is hit, never NaN
             else:
                 t = kind.t_block(start, stop, origin, direction, time)
                 t_block = nearest = np.fmin.reduce(t, axis=0)  # fmin: a miss may be NaN
             # strict: an earlier block keeps a tie; false where nothing was hit
-            closer = t_block < best_t
+            closer = t_block < (limit if best_t is None else best_t)
             # Each ray's lowest primitive at its minimum (there is one where
-            # closer): rank every primitive by its row, pushed past all rows
-            # (+ m) where it is not at the minimum, and take the least rank.
-            # Five passes over the block in bytes where a masked write per
-            # primitive (2 ns an element) or argmax along the first axis (a
-            # branchy loop) took ~70 us of a ~320 us 8 x 4096 block.
+            # closer): score every primitive m - row where it is at the
+            # minimum, 0 elsewhere, and take the greatest score.  Three passes
+            # over the block in bytes where a masked write per primitive (2 ns
+            # an element) or argmax along the first axis (a branchy loop) took
+            # ~70 us of a ~320 us 8 x 4096 block; a least rank (the row, plus m
+            # where not at the minimum) took four: 16.6 against 14.7 us on
+            # W1's 5 x 8192 float32 keys.
             m = stop - start
-            rank_type = np.uint8 if m <= 128 else np.uint32  # row + m fits
-            rank = np.multiply(np.not_equal(t, nearest).view(np.uint8), rank_type(m), dtype=rank_type)
-            rank += np.arange(m, dtype=rank_type)[:, None]
-            if untouched:
-                # every index still -1 (a scene of spheres only has one block):
-                # (least rank + index + 1) * closer - 1, exact in int32, where
-                # the masked add below took ~13 us of an 8192-ray block
-                best_idx = np.add(np.minimum.reduce(rank, axis=0), offset + start + 1, dtype=np.int32)
+            top = np.maximum.reduce(np.multiply(np.equal(t, nearest).view(np.uint8), _row_scores(m)), axis=0)
+            if best_idx is None:
+                # every index still -1: (row + index + 1) * closer - 1, exact
+                # in int32, where the masked subtraction below took ~13 us of
+                # an 8192-ray block (row = m - top)
+                best_idx = np.subtract(offset + start + m + 1, top, dtype=np.int32)
                 best_idx *= closer
                 best_idx -= 1
-                untouched = False
             else:
-                np.add(np.minimum.reduce(rank, axis=0), offset + start, out=best_idx, where=closer, dtype=np.int32)
-            best_t = np.fmin(best_t, t_block)
-        if escaped_inf and not (np.ndim(t_max) == 0 and t_max == np.inf):  # else escaped_at_inf returns best_t
+                np.subtract(offset + start + m, top, out=best_idx, where=closer, dtype=np.int32)
+            if best_t is not None:
+                best_t = np.fmin(best_t, t_block)
+            elif not (keyed and scalar_limit and limit == np.inf):
+                best_t = np.fmin(limit, t_block)
+            else:  # fmin(inf, t_block) is t_block, which is never NaN here: no pass
+                best_t = t_block
+        if best_t is None:  # no block could hit
+            best_t = np.full(n, limit) if scalar_limit else limit
+            best_idx = np.full(n, -1, dtype=np.int32)
+        if escaped_inf and not (scalar_limit and t_max == np.inf):  # else escaped_at_inf returns best_t
             best_t = escaped_at_inf(best_t, best_idx >= 0, t_max)
         return Hits(best_t, best_idx)
 
@@ -383,8 +407,10 @@ class Primitives:
         ``uv`` computes surface coordinates too (only image textures read
         them, and for spheres they cost two transcendental functions per hit).
         """
+        # the tables' gathers below want intp indices: cast once, not in each take
+        rows = idx.astype(np.intp)
         if len(self.kinds) == 1:
-            point, outward, shading, coords = self.kinds[0].surface(idx, origin, direction, t, uv, time)
+            point, outward, shading, coords = self.kinds[0].surface(rows, origin, direction, t, uv, time)
         else:
             n = idx.shape[0]
             point = np.empty((3, n), dtype=origin.dtype)
@@ -403,11 +429,14 @@ class Primitives:
                 if uv:
                     coords[:, sel] = c
         front_face = dot(direction, outward) < 0.0
-        sign = 2 * front_face.astype(outward.dtype) - 1  # flip to face the ray; cheaper than a (3, N) where
+        # 1 or -1, to flip the normals to face the ray (cheaper than a (3, N) where), in place
+        sign = front_face.astype(outward.dtype)
+        sign *= 2
+        sign -= 1
         normal = None if shading is outward else shading * sign
         # flipped in place: every kind's outward normals are a new array of
         # its own (gathered from its table or computed), as is the one above
         geometric = np.multiply(outward, sign, out=outward)
         normal = geometric if normal is None else normal
         return SurfaceHits(point=point, normal=normal, geometric_normal=geometric, front_face=front_face,
-                           material_idx=self.material_idx.take(idx), primitive_idx=idx, uv=coords)
+                           material_idx=self.material_idx.take(rows), primitive_idx=idx, uv=coords)

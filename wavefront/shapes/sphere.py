@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, key_root,
-                        nearest_root_key, sphere_roots)
+from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, key_root, limit_key,
+                        nearest_root_key, roots_key, sphere_roots)
 from ..vecmath import gather
 from .base import ShapeKind
 
@@ -162,9 +162,15 @@ class SphereSet(ShapeKind):
 
     def key_block(self, start, stop, origin, direction, time=None):
         """:meth:`t_block`'s roots as :func:`~wavefront.geometry.nearest_root_key`
-        keys (None for an anchored set, whose ``t_min`` is per ray)."""
+        keys.  An anchored set keys its two roots (three passes, where
+        :func:`~wavefront.geometry.first_root` took seven); where some ray
+        has a ``t_min`` of its own (beyond ``FLOAT32_EXTENT``) it keys
+        ``first_root``'s root, past each ray's ``t_min`` and so past ``T_MIN``."""
         if self.anchored:
-            return None
+            a, b, t_min = anchored_roots(*self.block(start, stop), origin[:, None, :], direction[:, None, :])
+            if np.ndim(t_min):
+                return roots_key(first_root(a, b, t_min))
+            return roots_key(a, b)
         center, radius_squared = self.block(start, stop)
         if self.velocity is not None and time is not None:
             center = center + self.velocity[:, start:stop, None] * np.asarray(time).astype(self.dtype, copy=False)
@@ -204,7 +210,15 @@ class SphereSet(ShapeKind):
             a, b, t_min = anchored_roots(*fields, o, d)
         else:
             h, sqrt_disc = sphere_roots(*fields, o, d)
+            if isinstance(t_max, np.ndarray) and t_max.dtype == h.dtype:
+                # keyed: a root in (T_MIN, t_max) is a key below t_max's, six
+                # passes over the block where the two roots' comparisons took nine
+                return nearest_root_key(h, sqrt_disc) < limit_key(t_max)
             a, b, t_min = h - sqrt_disc, h + sqrt_disc, T_MIN
+        if np.ndim(t_min) == 0 and isinstance(t_max, np.ndarray) and t_max.dtype == a.dtype:
+            # every ray's t_min is T_MIN, and the comparisons were in the roots' type: keyed,
+            # four passes over the block where root_within's took seven
+            return roots_key(a, b) < limit_key(t_max)
         blocked = root_within(a, t_min, t_max)
         blocked |= root_within(b, t_min, t_max)
         return blocked
