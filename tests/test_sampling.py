@@ -350,8 +350,8 @@ def test_net_table_holds_the_premixed_reversed_points(index_bits):
 
 def test_unit_conversion_never_reaches_one_and_keeps_its_bits():
     top = np.full((2, 1), 0xFFFFFFFF, dtype=np.uint32)
-    assert _to_unit(top, np.float64).max() == 1 - 2.0**-32
-    assert _to_unit(top, np.float32).max() == np.float32(1 - 2.0**-24)
+    assert _to_unit(top.copy(), np.float64).max() == 1 - 2.0**-32
+    assert _to_unit(top.copy(), np.float32).max() == np.float32(1 - 2.0**-24)
     # the low bits a float keeps are as uniform as the high ones: bits 17-24 in float32, 25-32 in float64
     for dtype, bits in ((np.float32, 24), (np.float64, 32)):
         v = one_sample_per_pixel(Sampler(scene_key(5), 16, "sobol"), 5, n=N, dtype=dtype)
