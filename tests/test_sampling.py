@@ -538,6 +538,7 @@ def test_words_per_pixel_run_are_those_per_path(kind, run):
         assert runs is None  # nothing shared per pixel, or runs too short to pay
     elif run > 8:
         assert runs is not None
+    assert Sampler(scene_key(8), 7, kind).runs(pixel) is None  # no run of 7 samples a pixel is longer
     state = sampler.start(pixel, sample_id)
     np.testing.assert_array_equal(sampler.start(pixel, sample_id, runs), state)
     for pair in (0, 1, 9, TIME_PAIR):

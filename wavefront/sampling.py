@@ -695,8 +695,11 @@ class Sampler:
     def runs(self, pixel: np.ndarray) -> PixelRuns | None:
         """:func:`pixel_runs` of new paths' ``pixel``, for :meth:`start` and
         :meth:`pairs`; None for the independent sampler, whose numbers share
-        nothing per pixel."""
-        return pixel_runs(pixel) if self.kind == "sobol" else None
+        nothing per pixel, and below RUN_MIN samples a pixel (no run of a
+        pixel's samples is longer: nothing to look for)."""
+        if self.kind != "sobol" or self.samples_per_pixel < RUN_MIN:
+            return None
+        return pixel_runs(pixel)
 
     def _pixel_words(self, pixel: np.ndarray) -> np.ndarray:
         """The high words of the sobol states of pixels ``pixel`` (uint64, low words zero)."""
