@@ -176,7 +176,7 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     lens = sampler.pairs(state, 1, runs=runs) if frame.has_defocus else None
     if pixel_centres:
         u[:2] = 0.5
-    origin, direction = frame.generate_rays(pixel, u, lens)  # in float64, then at the render's precision
+    origin, direction = frame.generate_rays(pixel, u, lens, cs.dtype)  # in float64, then at the render's precision
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
