@@ -543,7 +543,8 @@ def test_words_per_pixel_run_are_those_per_path(kind, run):
     np.testing.assert_array_equal(sampler.start(pixel, sample_id, runs), state)
     for pair in (0, 1, 9, TIME_PAIR):
         for dtype in (np.float64, np.float32):
-            np.testing.assert_array_equal(sampler.pairs(state, pair, dtype, runs=runs), sampler.pairs(state, pair, dtype))
+            np.testing.assert_array_equal(sampler.pairs(state, pair, dtype, runs=runs),
+                                          sampler.pairs(state, pair, dtype))
 
 
 @pytest.mark.parametrize("kind", SAMPLERS)
