@@ -686,8 +686,12 @@ class Sampler:
         sample_id = sample_id.astype(np.uint64, copy=False)
         if self.kind == "independent":
             return path_state(self.key, sample_id)
-        pixel = pixel.astype(np.uint64, copy=False)
-        index = (sample_id - pixel * np.uint64(self.samples_per_pixel)).astype(np.uint32)
+        # int64 pixels (the refill's) viewed, not copied: the same bits as
+        # astype's, ~10 us of a 41 Ki path refill
+        pixel = pixel.view(np.uint64) if pixel.dtype == np.int64 else pixel.astype(np.uint64)
+        index = pixel * np.uint64(self.samples_per_pixel)
+        np.subtract(sample_id, index, out=index)
+        index = index.astype(np.uint32)
         state = self._pixel_words(pixel) if runs is None else runs.repeat(self._pixel_words(pixel.take(runs.first)))
         state |= _premixed_reversed_index(index, self.index_bits)
         return state
