@@ -350,8 +350,8 @@ def test_net_table_holds_the_premixed_reversed_points(index_bits):
 
 def test_unit_conversion_never_reaches_one_and_keeps_its_bits():
     top = np.full((2, 1), 0xFFFFFFFF, dtype=np.uint32)
-    assert _to_unit(top, np.float64).max() == 1 - 2.0**-32
-    assert _to_unit(top, np.float32).max() == np.float32(1 - 2.0**-24)
+    assert _to_unit(top.copy(), np.float64).max() == 1 - 2.0**-32
+    assert _to_unit(top.copy(), np.float32).max() == np.float32(1 - 2.0**-24)
     # the low bits a float keeps are as uniform as the high ones: bits 17-24 in float32, 25-32 in float64
     for dtype, bits in ((np.float32, 24), (np.float64, 32)):
         v = one_sample_per_pixel(Sampler(scene_key(5), 16, "sobol"), 5, n=N, dtype=dtype)
@@ -522,6 +522,32 @@ def test_sobol_pair_as_int_or_per_path_gives_the_same_numbers(pair):
 
 
 @pytest.mark.parametrize("kind", SAMPLERS)
+@pytest.mark.parametrize("run", [1, 3, 8, 16, 100])
+def test_words_per_pixel_run_are_those_per_path(kind, run):
+    """Sampler.start and Sampler.pairs given the paths' pixel runs (new
+    paths: per-pixel words computed once a run and repeated) give every
+    path's state and numbers bit for bit, runs cut at both ends and of
+    uneven lengths included."""
+    spp = 100
+    sampler = Sampler(scene_key(8), spp, kind)
+    rng = np.random.default_rng(8)
+    pixel = np.repeat(rng.integers(0, 10**6, 5000 // run + 2), rng.integers(1, 2 * run, 5000 // run + 2))[3:3003]
+    sample_id = (pixel * spp + rng.integers(0, spp, pixel.size)).astype(np.uint64)
+    runs = sampler.runs(pixel)
+    if kind == "independent" or run < 8:
+        assert runs is None  # nothing shared per pixel, or runs too short to pay
+    elif run > 8:
+        assert runs is not None
+    assert Sampler(scene_key(8), 7, kind).runs(pixel) is None  # no run of 7 samples a pixel is longer
+    state = sampler.start(pixel, sample_id)
+    np.testing.assert_array_equal(sampler.start(pixel, sample_id, runs), state)
+    for pair in (0, 1, 9, TIME_PAIR):
+        for dtype in (np.float64, np.float32):
+            np.testing.assert_array_equal(sampler.pairs(state, pair, dtype, runs=runs),
+                                          sampler.pairs(state, pair, dtype))
+
+
+@pytest.mark.parametrize("kind", SAMPLERS)
 @pytest.mark.parametrize("n", [0, 1, 700])
 def test_pairs_drawn_together_are_those_drawn_apart(kind, n):
     """Sampler.pairs_together (a small bounce's light, bounce and roulette
@@ -661,8 +687,8 @@ def test_negative_control_biased_sampler_is_rejected(monkeypatch):
     """Every uniform raised to the power 1.1 (still in [0, 1), slightly towards 0)."""
     reference = independent_image("quad_lit")  # before the sampler goes wrong
     pairs = Sampler.pairs
-    monkeypatch.setattr(Sampler, "pairs", lambda self, state, pair, dtype=np.float64: pairs(self, state, pair,
-                                                                                             dtype) ** 1.1)
+    monkeypatch.setattr(Sampler, "pairs", lambda self, state, pair, dtype=np.float64, **runs: pairs(
+        self, state, pair, dtype, **runs) ** 1.1)
     bad, z, worst = differ(mean_image(with_sampler(quad_lit(), "sobol"), range(300, 304)), reference)
     assert bad, f"z = {z:.2f}, largest block |z| = {worst:.2f}"
 

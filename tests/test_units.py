@@ -90,11 +90,16 @@ def test_generate_rays_matches_the_plain_formula_bit_for_bit(seed, defocus, widt
         saved, camera_module.RAY_BLOCK = camera_module.RAY_BLOCK, block
         try:
             origin, direction = frame.generate_rays(pixel, u)
+            # float32 results: the float64 rays rounded (block by block inside)
+            origin32, direction32 = frame.generate_rays(pixel, u[:2], u[2:], np.float32)
         finally:
             camera_module.RAY_BLOCK = saved
         np.testing.assert_array_equal(origin, expected_origin)
         np.testing.assert_array_equal(direction, expected_direction)
         assert origin.flags.writeable and origin.flags.c_contiguous
+        assert origin32.dtype == direction32.dtype == np.float32
+        np.testing.assert_array_equal(origin32, expected_origin.astype(np.float32))
+        np.testing.assert_array_equal(direction32, expected_direction.astype(np.float32))
 
 
 def test_pixel_rows_and_columns_are_exact_at_the_largest_image():

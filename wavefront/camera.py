@@ -182,7 +182,7 @@ class CameraFrame:
     defocus_v: np.ndarray
     has_defocus: bool
 
-    def generate_rays(self, pixel: np.ndarray, u: np.ndarray, lens: np.ndarray | None = None):
+    def generate_rays(self, pixel: np.ndarray, u: np.ndarray, lens: np.ndarray | None = None, dtype=np.float64):
         """Primary rays for flat pixel indices, jittered over the pixel square.
 
         Parameters
@@ -195,17 +195,28 @@ class CameraFrame:
         lens : ndarray of shape (2, N), optional
             The lens sample, if not in ``u`` (then (2, N)): the sampler's
             two pairs are not copied into one array.
+        dtype : float32 or float64
+            The results' type.  The rays are always made in float64; float32
+            results are those rounded, block by block while the block is in
+            cache (not a float64 copy of the whole batch rounded later).
 
         Returns
         -------
         origin, direction : ndarray of shape (3, N); directions are unit.
         """
         n = pixel.shape[0]
-        origin, direction = np.empty((3, n)), np.empty((3, n))
+        origin, direction = np.empty((3, n), dtype=dtype), np.empty((3, n), dtype=dtype)
+        rounded = np.dtype(dtype) != np.float64
+        if rounded:
+            block = min(n, RAY_BLOCK)
+            origin64, direction64 = np.empty((3, block)), np.empty((3, block))
         for i in range(0, n, RAY_BLOCK):
             j = min(n, i + RAY_BLOCK)
-            self._rays(pixel[i:j], u[:, i:j], origin[:, i:j], direction[:, i:j],
-                       u[2:, i:j] if lens is None else lens[:, i:j])
+            o, d = (origin64[:, :j - i], direction64[:, :j - i]) if rounded else (origin[:, i:j], direction[:, i:j])
+            self._rays(pixel[i:j], u[:, i:j], o, d, u[2:, i:j] if lens is None else lens[:, i:j])
+            if rounded:
+                np.copyto(origin[:, i:j], o, casting="same_kind")
+                np.copyto(direction[:, i:j], d, casting="same_kind")
         return origin, direction
 
     def _rays(self, pixel, u, origin, target, lens) -> None:

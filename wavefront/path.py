@@ -169,13 +169,14 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     None (neither made, kept up nor compacted).
     """
     pixel, sample_id = job.samples(start, stop)
-    state = sampler.start(pixel, sample_id)
-    u = sampler.pairs(state, 0)  # pixel jitter
+    runs = sampler.runs(pixel)  # a pixel's samples are consecutive: its words computed once
+    state = sampler.start(pixel, sample_id, runs)
+    u = sampler.pairs(state, 0, runs=runs)  # pixel jitter
     # a pinhole never reads the lens pair: not drawing it changes no number
-    lens = sampler.pairs(state, 1) if frame.has_defocus else None
+    lens = sampler.pairs(state, 1, runs=runs) if frame.has_defocus else None
     if pixel_centres:
         u[:2] = 0.5
-    origin, direction = frame.generate_rays(pixel, u, lens)  # in float64, then at the render's precision
+    origin, direction = frame.generate_rays(pixel, u, lens, cs.dtype)  # in float64, then at the render's precision
     n = stop - start
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it

@@ -537,11 +537,12 @@ def sobol_points(state: np.ndarray, seeds: np.ndarray, index_bits: int, dtype=np
 
 
 def sobol_words(state: np.ndarray, seeds: np.ndarray, index_bits: int, low: np.ndarray | None = None,
-                dimension: int | None = None) -> np.ndarray:
+                dimension: int | None = None, multiplier: np.ndarray | None = None) -> np.ndarray:
     """:func:`sobol_points` before the conversion to uniforms: the points'
-    32-bit words, uint32 ``(2, N)``, or ``(N,)`` of one ``dimension`` (0 or 1)."""
-    multiplier = seeds[0] >> _S16U
-    multiplier |= _ONE32
+    32-bit words, uint32 ``(2, N)``, or ``(N,)`` of one ``dimension`` (0 or 1).
+    ``multiplier``: :func:`scramble_multiplier` of ``seeds``, if the caller has it."""
+    if multiplier is None:
+        multiplier = scramble_multiplier(seeds)
     shuffled = shuffle_index(state.astype(np.uint32) if low is None else low, seeds[0], multiplier, index_bits)
     if index_bits <= _TABLE_BITS:
         table = _net_table(index_bits)
@@ -550,6 +551,14 @@ def sobol_words(state: np.ndarray, seeds: np.ndarray, index_bits: int, low: np.n
         v = _net_points(shuffled, index_bits)
         v = v if dimension is None else v[dimension]
     return reverse_bits(owen_scramble_premixed(v, seeds[1:] if dimension is None else seeds[1 + dimension], multiplier))
+
+
+def scramble_multiplier(seeds: np.ndarray) -> np.ndarray:
+    """The odd multiplier of the shuffle and the scrambles, from the shuffle's
+    seed (``seeds[0]``, see "the low-discrepancy sampler"); uint32 (N,)."""
+    multiplier = seeds[0] >> _S16U
+    multiplier |= _ONE32
+    return multiplier
 
 
 def sobol_pairs(state: np.ndarray, pair, index_bits: int, dtype=np.float64) -> np.ndarray:
@@ -562,13 +571,75 @@ def _to_unit(v: np.ndarray, dtype) -> np.ndarray:
     """uint32 ``(2, N)`` to uniforms in [0, 1): all 32 bits in float64 (exact,
     at most ``1 - 2^-32``), the top 24 in float32 (exact, at most
     ``1 - 2^-24``): never 1, which is what pbrt's OneMinusEpsilon clamp is for
-    when it rounds 32 bits into a float."""
+    when it rounds 32 bits into a float.  Consumes ``v`` (float32: its words
+    are shifted in place)."""
     if dtype is np.float32 or np.dtype(dtype) == np.float32:
-        out = np.empty(v.shape, dtype=np.float32)
-        # converted and scaled in float32 (exact below 2^24): a float64 loop cast down took twice as long
-        np.multiply(v >> _S8U, _TO_UNIT_24_F32, out=out, dtype=np.float32, casting="unsafe")
+        # converted and scaled in float32 (exact below 2^24): a float64 loop
+        # cast down took twice as long.  The top 24 bits, shifted down in
+        # place, are below 2^31, so they convert as int32, whose conversion
+        # is a SIMD loop and uint32's is not: 20 us against 26 on 82 Ki
+        # words, and no temporary.
+        v >>= _S8U
+        out = v.view(np.int32).astype(np.float32)
+        out *= _TO_UNIT_24_F32
         return out
-    return np.multiply(v, _TO_UNIT_32)  # uint32 * float64: float64
+    # converted, then scaled in place (both exact): 31 us against 36 for the
+    # mixed-type multiply on 82 Ki words
+    out = v.astype(np.float64)
+    out *= _TO_UNIT_32
+    return out
+
+
+# A refill's new paths come pixel by pixel (a unit's slots are its pixels,
+# each repeated for the pass's samples), and with the sobol sampler what
+# depends on the pixel alone -- the hash of the state's high word, a fixed
+# pair's three seed words and its multiplier -- is the same for every sample
+# of a run of equal pixels: computed once per run and repeated.  At 41 Ki
+# camera paths, 32 samples a pixel, repeating a pair's four rows costs 16 us
+# against 90 for computing them per path; at 4 a pixel the repeat costs 70
+# (it copies 4 bytes at a time), so below RUN_MIN paths a run on average the
+# runs are not used.
+RUN_MIN = 8
+# pixel_runs looks at every RUN_PROBE-th neighbouring pair first (~3 us on
+# 41 Ki paths, against ~25 for the full pass), so batches of short runs (a
+# render of few samples a pixel, its first passes) cost next to nothing.
+RUN_PROBE = 16
+
+
+@dataclass(frozen=True, slots=True)
+class PixelRuns:
+    """Runs of equal consecutive pixels in a batch of new paths: run ``r``
+    is paths ``first[r] : first[r] + length[r]``, all of one pixel.
+
+    first, length : ndarray of shape (M,), int64
+    """
+
+    first: np.ndarray
+    length: np.ndarray
+
+    def repeat(self, per_run: np.ndarray) -> np.ndarray:
+        """Each run's value (the last axis, M) repeated over its paths (N)."""
+        return np.repeat(per_run, self.length, axis=-1)
+
+
+def pixel_runs(pixel: np.ndarray) -> PixelRuns | None:
+    """The runs of equal consecutive values of ``pixel`` (N,), or None when
+    they are shorter than ``RUN_MIN`` paths on average (then per-path work
+    is cheaper than repeating per-run work)."""
+    n = pixel.shape[0]
+    if n < RUN_MIN * RUN_PROBE:
+        return None
+    probe = pixel[1::RUN_PROBE] != pixel[:-1:RUN_PROBE]
+    if np.count_nonzero(probe) * RUN_MIN > probe.shape[0]:
+        return None
+    change = np.flatnonzero(pixel[1:] != pixel[:-1])
+    if (change.size + 1) * RUN_MIN > n:
+        return None
+    first = np.empty(change.size + 1, dtype=np.int64)
+    first[0] = 0
+    np.add(change, 1, out=first[1:])
+    length = np.diff(first, append=n)
+    return PixelRuns(first, length)
 
 
 SAMPLERS = ("sobol", "independent")
@@ -607,26 +678,60 @@ class Sampler:
         """Bits of the sample index (``spp <= 2^index_bits``)."""
         return (self.samples_per_pixel - 1).bit_length()
 
-    def start(self, pixel: np.ndarray, sample_id: np.ndarray) -> np.ndarray:
+    def start(self, pixel: np.ndarray, sample_id: np.ndarray, runs: PixelRuns | None = None) -> np.ndarray:
         """Per-path state (uint64, shape (N,)) of the samples ``sample_id =
-        pixel * samples_per_pixel + sample index`` of pixels ``pixel``."""
+        pixel * samples_per_pixel + sample index`` of pixels ``pixel``
+        (``runs``: :func:`pixel_runs` of ``pixel``, if known: the pixel's
+        part of the state is then hashed once per run)."""
         sample_id = sample_id.astype(np.uint64, copy=False)
         if self.kind == "independent":
             return path_state(self.key, sample_id)
-        pixel = pixel.astype(np.uint64, copy=False)
-        index = (sample_id - pixel * np.uint64(self.samples_per_pixel)).astype(np.uint32)
-        state = mix64(pixel ^ self.key)
-        state &= _HIGH32
-        state ^= (state >> _S16) & _HIGH32  # the seed hash's first step (see pair_seeds), once per path
+        # int64 pixels (the refill's) viewed, not copied: the same bits as
+        # astype's, ~10 us of a 41 Ki path refill
+        pixel = pixel.view(np.uint64) if pixel.dtype == np.int64 else pixel.astype(np.uint64)
+        index = pixel * np.uint64(self.samples_per_pixel)
+        np.subtract(sample_id, index, out=index)
+        index = index.astype(np.uint32)
+        state = self._pixel_words(pixel) if runs is None else runs.repeat(self._pixel_words(pixel.take(runs.first)))
         state |= _premixed_reversed_index(index, self.index_bits)
         return state
 
-    def pairs(self, state: np.ndarray, pair, dtype=np.float64) -> np.ndarray:
-        """Uniforms for pair ``pair`` (an int, or one per path) of each path; shape (2, N)."""
-        if not isinstance(pair, (int, np.integer)) and pair.size and pair.min() == pair.max():
+    def runs(self, pixel: np.ndarray) -> PixelRuns | None:
+        """:func:`pixel_runs` of new paths' ``pixel``, for :meth:`start` and
+        :meth:`pairs`; None for the independent sampler, whose numbers share
+        nothing per pixel, and below RUN_MIN samples a pixel (no run of a
+        pixel's samples is longer: nothing to look for)."""
+        if self.kind != "sobol" or self.samples_per_pixel < RUN_MIN:
+            return None
+        return pixel_runs(pixel)
+
+    def _pixel_words(self, pixel: np.ndarray) -> np.ndarray:
+        """The high words of the sobol states of pixels ``pixel`` (uint64, low words zero)."""
+        state = mix64(pixel ^ self.key)
+        state &= _HIGH32
+        state ^= (state >> _S16) & _HIGH32  # the seed hash's first step (see pair_seeds), once per path
+        return state
+
+    def pairs(self, state: np.ndarray, pair, dtype=np.float64, runs: PixelRuns | None = None) -> np.ndarray:
+        """Uniforms for pair ``pair`` (an int, or one per path) of each path;
+        shape (2, N).  ``runs``: the :func:`pixel_runs` of the paths' pixels,
+        if known (new paths: the pair's words are then computed once per
+        run; an int ``pair`` only)."""
+        if runs is not None and self.kind == "sobol" and isinstance(pair, (int, np.integer)):
+            low, high = _halves(state)
+            words = np.empty((SEED_ROWS + 1, runs.first.shape[0]), dtype=np.uint32)
+            words[:SEED_ROWS] = pair_seeds(high.take(runs.first), pair)
+            words[SEED_ROWS] = scramble_multiplier(words)
+            words = runs.repeat(words)
+            return _to_unit(sobol_words(state, words[:SEED_ROWS], self.index_bits, low,
+                                        multiplier=words[SEED_ROWS]), dtype)
+        if not isinstance(pair, (int, np.integer)) and pair.size and pair[0] == pair[-1] and pair.min() == pair.max():
             # every path at the same depth (a batch no refill has mixed): the
             # pair's own hash once, not per path (the same numbers; see
-            # pair_seeds), ~20 us of a 30 Ki path bounce's draw for two reductions
+            # pair_seeds), ~20 us of a 30 Ki path bounce's draw for two
+            # reductions.  The ends compared first: a refilled batch's new
+            # paths (depth 0) come last, so most mixed batches (229 of W1's
+            # 367 bounce and roulette draws) skip the reductions (4 us on 41 Ki)
             pair = int(pair[0])
         if self.kind == "independent":
             if isinstance(pair, (int, np.integer)):
@@ -641,7 +746,7 @@ class Sampler:
         only (253 us against 358 for 32 Ki paths)."""
         if self.kind != "sobol":
             return self.pairs(state, pair, dtype)[dimension]
-        if not isinstance(pair, (int, np.integer)) and pair.size and pair.min() == pair.max():
+        if not isinstance(pair, (int, np.integer)) and pair.size and pair[0] == pair[-1] and pair.min() == pair.max():
             pair = int(pair[0])  # as pairs does: the pair's hash once
         low, high = _halves(state)
         return _to_unit(sobol_words(state, pair_seeds(high, pair), self.index_bits, low, dimension), dtype)
