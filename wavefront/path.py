@@ -131,7 +131,10 @@ RIDING_RAYS = 2048
 # after it, and their per-sample radiance, in memory: at this bound the
 # wavefront drains as it did before streaming.  A task's samples are issued
 # over ~20 bounces, and W1's glass and metal paths often live longer: with
-# two, W1's workers still drained ~9 times each (two of every three tasks).
+# two, W1's workers still drained ~9 times each (two of every three tasks);
+# with three, about once a render in one worker (a straggler of its oldest
+# task holding the two after it, session 10), ~6-10 ms: less than a fourth
+# task's store would cost in first writes (+13 MB a worker on W1).
 HELD_TASKS = 3
 # A bounce of at most this many paths draws their light, bounce and roulette
 # uniforms together, in one call (see draw_together).
