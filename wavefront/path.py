@@ -131,7 +131,10 @@ RIDING_RAYS = 2048
 # after it, and their per-sample radiance, in memory: at this bound the
 # wavefront drains as it did before streaming.  A task's samples are issued
 # over ~20 bounces, and W1's glass and metal paths often live longer: with
-# two, W1's workers still drained ~9 times each (two of every three tasks).
+# two, W1's workers still drained ~9 times each (two of every three tasks);
+# with three, about once a render in one worker (a straggler of its oldest
+# task holding the two after it, session 10), ~6-10 ms: less than a fourth
+# task's store would cost in first writes (+13 MB a worker on W1).
 HELD_TASKS = 3
 # A bounce of at most this many paths draws their light, bounce and roulette
 # uniforms together, in one call (see draw_together).
@@ -467,8 +470,13 @@ class HeldTasks:
         self.job = first
         self.counts = [TraceStats(samples=first.size)]  # each held task's own (see charge)
         # room for the held tasks twice over: the window is moved back to the
-        # start (a copy of what it holds) once every few tasks, not every task
-        self.store = np.zeros((3, 2 * HELD_TASKS * max(first.size, 1)))
+        # start (a copy of what it holds) once every few tasks, not every task.
+        # Not np.zeros: a task's samples are zeroed as it joins (here and in
+        # add), and zeroing the whole store up front wrote every page of it once
+        # more, at the worker's start (calloc from the heap memsets: 7-25 ms of
+        # W1's 38 MB store, up to 200 ms when the kernel compacts for huge pages).
+        self.store = np.empty((3, 2 * HELD_TASKS * max(first.size, 1)))
+        self.store[:, :first.size] = 0.0
         self.start = 0
 
     @property
@@ -503,11 +511,18 @@ class HeldTasks:
         held, room = self.job.size, self.store.shape[1]
         if self.start + held + task.size > room:
             if held + task.size > room:
-                grown = np.zeros((3, max(2 * room, held + task.size)))
+                grown = np.empty((3, max(2 * room, held + task.size)))  # zeroed below where it is used
                 grown[:, :held] = self.radiance
                 self.store = grown
             else:
-                self.store[:, :held] = self.radiance  # back to the start (NumPy buffers an overlapping copy)
+                # back to the start, channel by channel: a 2-D view's rows
+                # interleave in memory, so NumPy copied the held samples to a
+                # temporary first even when the ranges are disjoint (as they
+                # are unless task sizes differ a lot); a row's copy is one
+                # memcpy, half the time (0.9 ms instead of 1.8 for two W1 tasks)
+                # and buffered by NumPy only where the ranges really overlap
+                for channel in self.store:
+                    channel[:held] = channel[self.start:self.start + held]
             self.start = 0
         self.store[:, self.start + held:self.start + held + task.size] = 0.0
         self.tasks.append(task)

@@ -852,6 +852,15 @@ class _Workers:
                 worker.process.join()
 
 
+# What a pool costs beyond its tasks (W1, 2 workers, session 10): on an idle
+# machine the process tree's CPU time was that of the inline render (3.25 s
+# against 3.30), the parent's ~0.21 s included: imports ~0.12, loading,
+# compiling and forking ~0.015, reading and merging results ~0.06 (film.add
+# 0.011-0.024 of it) while the workers run, writing the PNG ~0.05 after them.
+# Workers get their first task within 0.3 ms of starting and end within ~10 ms
+# of each other.  Tried and not kept: a 2 MiB socket send buffer, so a worker
+# never blocks handing over a result (~50 ms a worker on W1, mostly reducing
+# and pickling it, unchanged).
 def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     import multiprocessing  # here: a render of one task (or one worker) runs inline and never needs it
     from multiprocessing.connection import wait
