@@ -317,3 +317,32 @@ def test_brute_force_picks_the_lowest_nearest_sphere(seed, dtype, n, limited, bl
     np.testing.assert_array_equal(hits.primitive_idx, np.where(hit, nearest, -1))
     np.testing.assert_array_equal(hits.t, np.where(hit, t_nearest, np.inf).astype(dtype))
     assert hits.primitive_idx.dtype == np.int32
+
+
+@pytest.mark.parametrize("scalar", [False, True])
+def test_a_nan_limit_admits_no_hit_across_blocks(scalar):
+    """Nothing lies in (T_MIN, NaN): brute force's nearest-hit query agrees
+    with its any-hit query and the BVH there, also when the spheres span
+    several blocks (the first block's hit once became the bound of the next,
+    whose nearer sphere was then accepted)."""
+    from wavefront.bvh import BVH
+
+    n, m = 4097, 100  # blocks of fewer spheres than m at this many rays
+    centres = np.zeros((3, m))
+    centres[2] = -10.0 - (m - np.arange(m))  # a later index is nearer
+    spheres = SphereSet(centres, np.full(m, 0.25), np.zeros(m, np.int32))
+    prims = Primitives([spheres], np.float64)
+    assert len(list(prims._blocks(n))) > 1  # the case at stake
+    origin, direction = np.zeros((3, n)), np.zeros((3, n))
+    direction[2] = -1.0
+    t_max = np.float64(np.nan) if scalar else np.where(np.arange(n) % 2 == 0, np.nan, 50.0)
+    hits = prims.intersect(origin, direction, t_max)
+    nan_rows = np.isnan(np.broadcast_to(t_max, (n,)))
+    assert (hits.primitive_idx[nan_rows] == -1).all()
+    assert not prims.occluded(origin, direction, t_max)[nan_rows].any()
+    # finite limits still find the nearest sphere (index m - 1, at 10.75)
+    if not scalar:
+        assert (hits.primitive_idx[~nan_rows] == m - 1).all()
+        assert np.allclose(hits.t[~nan_rows], 10.75)
+    tree = BVH(prims)
+    assert (tree.intersect(origin, direction, t_max).primitive_idx == hits.primitive_idx).all()

@@ -268,6 +268,14 @@ class Primitives:
         scalar_limit = np.ndim(t_max) == 0
         # t_max in the rays' type: a scalar as np.full would cast it, or an (N,) copy
         limit = origin.dtype.type(t_max) if scalar_limit else np.array(t_max, dtype=origin.dtype).reshape(n)
+        # Nothing lies in (T_MIN, NaN): a NaN limit becomes -inf, which no t is
+        # below.  (fmin below would take the first block's hit in its place, and
+        # a later block's nearer sphere was then accepted, beyond any limit.)
+        if scalar_limit:
+            if np.isnan(limit):
+                limit = origin.dtype.type(-np.inf)
+        elif np.isnan(limit).any():  # one pass over the limits (~3 us for 16 Ki)
+            limit[np.isnan(limit)] = -np.inf
         # Until a block has hit, best_t is the limit and best_idx -1 everywhere:
         # both are made when first needed (the first keyed block writes them
         # whole, with no np.full, no fmin against the limit, and no masked add).
