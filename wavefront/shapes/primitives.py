@@ -280,6 +280,12 @@ class Primitives:
         # both are made when first needed (the first keyed block writes them
         # whole, with no np.full, no fmin against the limit, and no masked add).
         best_t = best_idx = None
+
+        def nothing_hit():
+            # the same numbers as broadcasting t_max (np.full casts a scalar as asarray
+            # would); int32 indices, what Hits holds
+            return np.full(n, limit) if scalar_limit else limit, np.full(n, -1, dtype=np.int32)
+
         rays32 = SlabFilter.rays(origin, direction, t_max) if self._filtered(origin) else None
         for kind, slab, offset, start, stop in self._blocks(n):
             if slab is not None and rays32 is not None:
@@ -287,9 +293,7 @@ class Primitives:
                 if ray.size == 0:
                     continue
                 if best_t is None:
-                    # the same numbers as broadcasting t_max (np.full casts a scalar as asarray would)
-                    best_t = np.full(n, limit) if scalar_limit else limit
-                    best_idx = np.full(n, -1, dtype=np.int32)  # int32, what Hits holds
+                    best_t, best_idx = nothing_hit()
                 t = kind.t_pairs(start + j, origin.take(ray, axis=1), direction.take(ray, axis=1),
                                  None if time is None else time.take(ray))
                 # strict, as below: an earlier block keeps a tie
@@ -346,8 +350,7 @@ class Primitives:
             else:  # fmin(inf, t_block) is t_block, which is never NaN here: no pass
                 best_t = t_block
         if best_t is None:  # no block could hit
-            best_t = np.full(n, limit) if scalar_limit else limit
-            best_idx = np.full(n, -1, dtype=np.int32)
+            best_t, best_idx = nothing_hit()
         if escaped_inf and not (scalar_limit and t_max == np.inf):  # else escaped_at_inf returns best_t
             best_t = escaped_at_inf(best_t, best_idx >= 0, t_max)
         return Hits(best_t, best_idx)
@@ -416,7 +419,7 @@ class Primitives:
         them, and for spheres they cost two transcendental functions per hit).
         """
         # the tables' gathers below want intp indices: cast once, not in each take
-        rows = idx.astype(np.intp)
+        rows = idx.astype(np.intp, copy=False)
         if len(self.kinds) == 1:
             point, outward, shading, coords = self.kinds[0].surface(rows, origin, direction, t, uv, time)
         else:
