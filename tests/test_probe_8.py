@@ -432,6 +432,38 @@ def test_a_pipe_over_the_budget_is_refused_before_it_is_read_whole(monkeypatch, 
     assert Endless.given < 16 * scenefile.STREAM_CHUNK  # a 64 MiB budget holds a few MiB of YAML, not 128 MiB
 
 
+def test_a_pipe_counts_the_bytes_it_has_read_once(monkeypatch):
+    """What has been read is already in this process's memory: the check
+    adds what loading it will take on top (as for a file, checked before it
+    is read), not the bytes read a second time.  A 19 MiB scene that loaded
+    from a file under --memory 200M was refused through /dev/stdin."""
+    import io
+
+    from wavefront import memory, scenefile
+
+    class Pipe(io.RawIOBase):  # SIZE bytes of comment, then the end
+        given = 0
+
+        def readable(self):
+            return True
+
+        def readinto(self, b):
+            n = min(len(b), SIZE - Pipe.given)
+            b[:n] = b"#" * n
+            Pipe.given += n
+            return n
+
+    SIZE, start = 8 * scenefile.STREAM_CHUNK, 40 << 20
+    # this process as it would be: what it held before reading plus the bytes read
+    monkeypatch.setattr(memory, "current_rss", lambda: start + Pipe.given)
+    budget = start + memory.LOAD_BYTES_PER_FILE_BYTE * SIZE  # exactly what a file of SIZE bytes may take
+    assert len(scenefile._read_stream(io.BufferedReader(Pipe()), "/dev/stdin", budget)) == SIZE
+    Pipe.given = 0
+    with pytest.raises(memory.MemoryBudgetError, match=r"loading /dev/stdin \(8 MiB read so far\) needs about "
+                                                       r"56 MiB more than the 48 MiB this process holds"):
+        scenefile._read_stream(io.BufferedReader(Pipe()), "/dev/stdin", budget - 1)
+
+
 def test_dev_zero_is_refused_within_the_budget(tmp_path):
     r = run("render", "/dev/zero", "-o", tmp_path / "x.npy", "--memory", "64M")
     refused(r, "/dev/zero", "--memory", outputs=[tmp_path / "x.npy"])

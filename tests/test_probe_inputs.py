@@ -239,6 +239,31 @@ def test_a_scene_read_from_a_pipe_is_held_to_the_budget_before_it_is_parsed(tmp_
     assert not (tmp_path / "o.npy").exists()
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/stdin"), reason="needs /dev/stdin")
+def test_a_piped_scene_loads_under_the_budget_its_file_loads_under(tmp_path):
+    """A piped scene's bytes were counted twice (once held, once in what
+    loading them needs): a 19 MiB scene loaded from a file under --memory
+    200M but was refused through /dev/stdin.  30 MiB of scene under 300M: a
+    file takes the interpreter (~40 MiB) and 8 bytes a byte (240 MiB);
+    counted twice it was ~310 MiB."""
+    import subprocess
+    import sys
+
+    text = "image: {width: 4, height: 4}\nrender: {samples_per_pixel: 1, max_depth: 1}\n"
+    text += "materials: {m: {type: lambertian}}\nspheres:\n"
+    line = "  - {center: [0, 0, -5], radius: 0.5, material: m}\n  # " + "pad " * 250 + "\n"
+    text += line * (30 * 2**20 // len(line))
+    scene = tmp_path / "big.yaml"
+    scene.write_text(text)
+    r = run("render", scene, "-o", tmp_path / "f.npy", "--memory", "300M", "-q")
+    assert r.returncode == 0, r.stderr  # the file loads (the test's premise)
+    # through a pipe (stdin redirected from the file would be the file itself, with its size)
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", "/dev/stdin", "-o", str(tmp_path / "p.npy"),
+                        "--memory", "300M", "-q"], input=text.encode(), capture_output=True, timeout=300)
+    assert r.returncode == 0, r.stderr.decode()
+    assert np.array_equal(np.load(tmp_path / "f.npy"), np.load(tmp_path / "p.npy"))
+
+
 def test_an_image_named_by_several_materials_is_decoded_once(tmp_path):
     """One picture on 12 materials was decoded 12 times (~160 MiB for 1024x1024),
     so a budget that held it once refused the scene."""

@@ -493,7 +493,13 @@ def _read_stream(f, source: str, memory: int | None) -> bytes:
     """Up to ``MAX_FILE_BYTES + 1`` bytes of a file without a size (a pipe,
     ``/dev/stdin``, a character device), in chunks: with a ``memory``
     budget, refused (:class:`MemoryBudgetError`) as soon as what has been
-    read could not be loaded within it, not after reading it all."""
+    read could not be loaded within it, not after reading it all.
+
+    The bytes read are already in this process's memory, so the check adds
+    only the rest of what loading them takes: the same bound as a file's,
+    checked before it is read (a 19 MiB scene that loaded from a file under
+    ``--memory 200M`` was refused through ``/dev/stdin`` when they were
+    counted twice)."""
     buffer = bytearray()
     while len(buffer) <= MAX_FILE_BYTES:
         chunk = f.read(min(STREAM_CHUNK, MAX_FILE_BYTES + 1 - len(buffer)))
@@ -502,7 +508,7 @@ def _read_stream(f, source: str, memory: int | None) -> bytes:
         buffer += chunk
         del chunk
         if memory is not None:
-            refuse_unless_fits(memory, LOAD_BYTES_PER_FILE_BYTE * len(buffer),
+            refuse_unless_fits(memory, (LOAD_BYTES_PER_FILE_BYTE - 1) * len(buffer),
                                f"loading {source} ({len(buffer) / MiB:,.0f} MiB read so far)")
     return bytes(buffer)
 
