@@ -97,6 +97,51 @@ def test_a_local_cluster_is_held_to_the_budget(tmp_path):
     assert int(r.stderr.split("peak memory ")[1].split()[0]) <= 320, r.stderr
 
 
+def test_a_local_cluster_refusal_says_what_this_process_holds(tmp_path):
+    """local:N's refusal gave what the workers and the cluster need, not what
+    this process already holds of the budget."""
+    r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.npy", "--scheduler", "local:2",
+            "--memory", "128M")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    held = int(r.stderr.split(" MiB this process holds")[0].rsplit(" ", 1)[1])
+    assert 20 <= held <= 128 and "MiB in all, more than the memory budget of 128 MiB" in r.stderr, r.stderr
+
+
+# A LocalCluster that records that it was started, and does not start (the
+# refusal must come before it: a cluster is ~140 MiB and seconds of start-up)
+NO_CLUSTER = ("import sys, dask.distributed\n"
+              "class Refused:\n"
+              "    def __init__(self, *a, **k):\n"
+              "        sys.exit('the cluster was started')\n"
+              "dask.distributed.LocalCluster = Refused\n"
+              "from wavefront.cli import command\n"
+              "sys.exit(command())\n")
+
+
+def test_a_render_too_big_for_a_local_cluster_is_refused_before_the_cluster_starts(tmp_path):
+    """A film-heavy render under local:N started the Dask cluster (~140 MiB, within
+    the budget) and only then did the planner refuse it."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "x.npy"
+    r = subprocess.run([sys.executable, "-c", NO_CLUSTER, "render", str(SCENES / "three_spheres.yaml"), "-o", str(out),
+                        "--width", "2000", "--height", "2000", "--spp", "1", "--scheduler", "local:1",
+                        "--memory", "250M"], capture_output=True, text=True, timeout=300)
+    # the workers fit (1 x 80 MiB and Dask 64 MiB beside ~40 MiB), the film (107 MiB) does not
+    assert r.returncode == 2 and "cluster was started" not in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "three_spheres.yaml: local:1: the render needs about" in r.stderr, r.stderr
+    assert "the film 107 MiB" in r.stderr and "MiB held by this process" in r.stderr, r.stderr
+    assert r.stderr.rstrip().endswith("more than the memory budget of 250 MiB (--memory)"), r.stderr
+    assert not out.exists()
+    # one that fits still starts it (here: is refused by the stand-in)
+    r = subprocess.run([sys.executable, "-c", NO_CLUSTER, "render", str(SCENES / "three_spheres.yaml"), "-o", str(out),
+                        "--width", "200", "--height", "200", "--spp", "1", "--scheduler", "local:1",
+                        "--memory", "300M"], capture_output=True, text=True, timeout=300)
+    assert "cluster was started" in r.stderr, r.stderr
+
+
 def test_a_local_cluster_worker_is_never_planned_as_the_parent():
     """A reviewer's local:1 under --memory 240M at 2000x2000 peaked at 290 MiB: one
     worker was planned as if the parent rendered inline, and the image was planned

@@ -421,12 +421,20 @@ def _render(args, signals: _Signals, started: float) -> int:
 
     executor, client, workers = None, None, args.workers
     if args.scheduler is not None:
-        from .distributed import SchedulerError, connect, dask_executor, local_worker_count
+        from .distributed import (SchedulerError, connect, dask_executor, local_worker_count,
+                                  refuse_unless_local_render_fits)
 
         try:
+            local_worker_count(args.scheduler, memory)  # the workers fit at all, before planning for them
+            refuse_unless_local_render_fits(args.scheduler, scene, memory, chunk_size=args.chunk_size,
+                                            output_bytes=max(encode_bytes(scene.width, scene.height, out)
+                                                             for out in outputs))
             client = connect(args.scheduler, memory)
         except SchedulerError as e:
             _say(f"wavefront: error: {e}")
+            return EXIT_BAD_INPUT
+        except MemoryBudgetError as e:
+            _say(f"wavefront: error: {_naming(args.scene, e)} (--memory)")
             return EXIT_BAD_INPUT
         executor = dask_executor(client, local_workers=local_worker_count(args.scheduler))
         workers = max(1, len(client.scheduler_info().get("workers", {})))

@@ -17,7 +17,9 @@ would pay for them).
 
 from __future__ import annotations
 
-from .render import POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute, tune_allocator
+from .memory import MemoryBudgetError, MiB, current_rss, release_free_memory
+from .render import (FILM_BYTES_PER_PIXEL, POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute,
+                     plan_local_workers, tune_allocator)
 from .sampling import scene_key
 from .validation import first_line
 
@@ -30,6 +32,14 @@ LOCAL_WORKER_BYTES = 80 * 1024 * 1024  # (and some room: the tree peaked 204 MiB
 # multiprocessing's resource tracker, a process of its own (~12 MiB).
 LOCAL_CLUSTER_BYTES = 64 * 1024 * 1024
 LOCAL_TRACKER_BYTES = 16 * 1024 * 1024
+# What Dask adds to this process, estimated before the cluster starts so that a
+# render the planner will refuse is refused first: importing dask.distributed
+# measured +26 MiB, starting a LocalCluster +2 MiB (Dask 2026.8).  Kept at the
+# low end, unlike LOCAL_CLUSTER_BYTES: the planner measures this process once
+# the cluster runs and has the last word, so an estimate too low only starts a
+# cluster the planner then refuses, while one too high would refuse renders
+# that fit.
+DASK_CLIENT_BYTES = 24 * 1024 * 1024
 
 
 class SchedulerError(ConnectionError):
@@ -38,34 +48,16 @@ class SchedulerError(ConnectionError):
 
 def connect(scheduler: str, memory: int | None = None):
     """A ``Client`` for ``tcp://host:port`` or ``local:N`` (a LocalCluster of
-    N processes, at most as many as ``memory`` bytes hold at
-    ``LOCAL_WORKER_BYTES`` each: ``local:99999999999999999999`` grew to 14
-    GB building its table of workers).  Anything that goes wrong while
-    connecting is a :class:`SchedulerError` (a port answering in another
-    protocol made Dask try to allocate 3 EiB)."""
+    N processes, at most as many as ``memory`` bytes hold: see
+    :func:`local_worker_count`).  Anything that goes wrong while connecting
+    is a :class:`SchedulerError` (a port answering in another protocol made
+    Dask try to allocate 3 EiB)."""
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError:
         raise SchedulerError("Dask is not installed: pip install 'wavefront[distributed]'") from None
-    if scheduler.startswith("local:"):
-        try:
-            n = int(scheduler.split(":", 1)[1])
-            if n < 1:
-                raise ValueError
-        except ValueError:
-            raise SchedulerError(f"{scheduler}: expected local:N with N >= 1 workers") from None
-        if memory is not None:  # checked before the cluster starts: its processes are in the budget
-            from .memory import current_rss
-
-            spare = memory - current_rss() - LOCAL_CLUSTER_BYTES
-            if n * LOCAL_WORKER_BYTES > spare:
-                fits = max(0, spare // LOCAL_WORKER_BYTES)
-                raise SchedulerError(
-                    f"{scheduler}: {n} local worker{'s' if n > 1 else ''} need{'' if n > 1 else 's'} at least "
-                    f"{LOCAL_WORKER_BYTES >> 20} MiB{' each' if n > 1 else ''} and the "
-                    f"cluster {LOCAL_CLUSTER_BYTES >> 20} MiB beside this process, more than the memory budget of "
-                    f"{memory >> 20} MiB (--memory) holds; "
-                    + (f"at most local:{fits}" if fits else "a local cluster does not fit in it"))
+    n = local_worker_count(scheduler, memory)
+    if n:
         import logging
 
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
@@ -77,9 +69,57 @@ def connect(scheduler: str, memory: int | None = None):
         raise SchedulerError(f"{scheduler}: cannot connect to the Dask scheduler ({first_line(e)})") from None
 
 
-def local_worker_count(scheduler: str) -> int:
-    """N for ``local:N`` (a scheduler :func:`connect` accepted), else 0."""
-    return int(scheduler.split(":", 1)[1]) if scheduler.startswith("local:") else 0
+def local_worker_count(scheduler: str, memory: int | None = None) -> int:
+    """N for ``local:N``, else 0 (an address).
+
+    With ``memory``, a :class:`SchedulerError` unless N workers at
+    ``LOCAL_WORKER_BYTES`` each and the cluster's ``LOCAL_CLUSTER_BYTES`` fit
+    beside what this process holds: checked before the cluster starts, since
+    its processes are in the budget (``local:99999999999999999999`` grew to
+    14 GB building Dask's table of workers)."""
+    if not scheduler.startswith("local:"):
+        return 0
+    try:
+        n = int(scheduler.split(":", 1)[1])
+        if n < 1:
+            raise ValueError
+    except ValueError:
+        raise SchedulerError(f"{scheduler}: expected local:N with N >= 1 workers") from None
+    if memory is not None:
+        held = current_rss()
+        need = n * LOCAL_WORKER_BYTES + LOCAL_CLUSTER_BYTES
+        if held + need > memory:
+            fits = max(0, (memory - held - LOCAL_CLUSTER_BYTES) // LOCAL_WORKER_BYTES)
+            raise SchedulerError(
+                f"{scheduler}: {n} local worker{'s' if n > 1 else ''} need{'' if n > 1 else 's'} at least "
+                f"{LOCAL_WORKER_BYTES // MiB} MiB{' each' if n > 1 else ''} and the cluster "
+                f"{LOCAL_CLUSTER_BYTES // MiB} MiB beside the {held / MiB:,.0f} MiB this process holds: "
+                f"{(held + need) / MiB:,.0f} MiB in all, more than the memory budget of {memory // MiB:,} MiB "
+                "(--memory); " + (f"at most local:{fits}" if fits else "a local cluster does not fit in it"))
+    return n
+
+
+def refuse_unless_local_render_fits(scheduler: str, scene, memory: int, *, chunk_size: int | None = None,
+                                    output_bytes: int | None = None) -> None:
+    """Before ``local:N``'s cluster starts: refuse (:class:`MemoryBudgetError`)
+    a render that the plan made once it runs would refuse, with this
+    process's memory as it is now and Dask's (its modules here,
+    ``DASK_CLIENT_BYTES``, and its tracker, ``LOCAL_TRACKER_BYTES``)
+    estimated.  A film-heavy render started the cluster (~140 MiB, seconds)
+    only to be refused by the planner.  The film is counted even when
+    resuming: the checkpoint's is not loaded yet."""
+    n = local_worker_count(scheduler)
+    if not n:
+        return
+    pixels = scene.width * scene.height
+    release_free_memory()  # as render_scene does before it measures: loading's garbage is not held
+    try:
+        plan_local_workers(scene, memory, n, chunk_size, held=current_rss(),
+                           cluster=DASK_CLIENT_BYTES + LOCAL_TRACKER_BYTES,
+                           worker_bytes=LOCAL_WORKER_BYTES, film=pixels * FILM_BYTES_PER_PIXEL,
+                           output=pixels * 3 * 4 if output_bytes is None else output_bytes)
+    except MemoryBudgetError as e:
+        raise MemoryBudgetError(f"{scheduler}: {e}") from None
 
 
 _COMPILED: dict = {}

@@ -189,7 +189,8 @@ class MemoryPlan:
 
 
 def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int, film: int,
-                per_worker: int, output: int, lasting: bool = False, streaming: bool = False) -> MemoryPlan:
+                per_worker: int, output: int, lasting: bool = False, streaming: bool = False,
+                cluster: int = 0) -> MemoryPlan:
     """Workers and wavefront size that fit ``memory`` bytes, the most workers first.
 
     An explicit ``chunk_size`` is kept (fewer workers are used if need be);
@@ -197,7 +198,9 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
     a worker is dropped rather than run one below ``GOOD_CAPACITY``.  With
     ``lasting`` (worker processes already running, that outlive the render:
     see :class:`MemoryPlan`) only ``workers`` is planned for; ``streaming``
-    as in :class:`MemoryPlan`.
+    as in :class:`MemoryPlan`.  ``cluster``: bytes a Dask cluster takes
+    beside this process's ``base`` (planned as part of the base; named apart
+    in the refusal, whose ``base`` is then what this process holds).
 
     Raises
     ------
@@ -205,6 +208,7 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
         When even one process at the smallest wavefront does not fit; the
         message gives the estimate.
     """
+    held, base = base, base + cluster
     fallback = None
     for w in range(workers, workers - 1 if lasting else 0, -1):
         plan = MemoryPlan(w, chunk_size or MIN_CAPACITY, base, film, per_worker, output, lasting, streaming)
@@ -225,7 +229,8 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
         return fallback
     smallest = MemoryPlan(workers if lasting else 1, chunk_size or MIN_CAPACITY, base, film, per_worker, output,
                           lasting, streaming)
-    parts = [f"the process and scene {_mib(base)}"]
+    parts = [f"{_mib(held)} held by this process", f"Dask {_mib(cluster)}"] if cluster else \
+        [f"the process and scene {_mib(base)}"]
     if lasting:
         parts.append(f"{smallest.workers} worker process{'es' if smallest.workers > 1 else ''} "
                      f"{_mib(smallest.workers * per_worker)}")
@@ -237,6 +242,25 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
         parts.append(f"{smallest.capacity} paths in flight {_mib(smallest.capacity * smallest.path_bytes)}")
     raise MemoryBudgetError(f"the render needs about {_mib(smallest.peak)} ({', '.join(parts)}), "
                             f"more than the memory budget of {_mib(memory)}")
+
+
+def plan_local_workers(scene: Scene, memory: int, workers: int, chunk_size: int | None, *, held: int,
+                       cluster: int, worker_bytes: int, film: int, output: int) -> MemoryPlan:
+    """The plan for ``workers`` worker processes on this machine that outlive
+    the render (a Dask LocalCluster; see :class:`MemoryPlan`'s ``lasting``):
+    each ``worker_bytes`` at rest plus the scene it compiles, beside this
+    process (``held`` bytes) and the ``cluster``'s own bytes.  The command
+    makes it before it starts the cluster too, with Dask's share estimated,
+    so a render that cannot fit is refused before the cluster's processes
+    exist (:func:`wavefront.distributed.refuse_unless_local_render_fits`).
+
+    Raises
+    ------
+    MemoryBudgetError
+        As :func:`plan_memory`.
+    """
+    return plan_memory(memory, workers, chunk_size, base=held, cluster=cluster, film=film,
+                       per_worker=worker_bytes + compile_bytes(scene)[0], output=output, lasting=True)
 
 
 def _mib(size: int) -> str:
@@ -574,9 +598,8 @@ def render_scene(scene: Scene, *, workers: int | None = None, memory: int = DEFA
     film_bytes = 0 if resume is not None else pixels * FILM_BYTES_PER_PIXEL
     output = pixels * 3 * 4 if output_bytes is None else output_bytes
     if local:
-        budget = plan_memory(memory, local, chunk_size, base=base + executor.cluster_bytes, film=film_bytes,
-                             per_worker=executor.worker_bytes + compile_bytes(scene)[0], output=output,
-                             lasting=True)
+        budget = plan_local_workers(scene, memory, local, chunk_size, held=base, cluster=executor.cluster_bytes,
+                                    worker_bytes=executor.worker_bytes, film=film_bytes, output=output)
     else:
         budget = plan_memory(memory, 1 if executor is not None else requested, chunk_size, base=base,
                              film=film_bytes, per_worker=base, output=output,
