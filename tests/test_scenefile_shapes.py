@@ -142,6 +142,8 @@ BAD_MESHES = [
     ("zero_only.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4: a face has index 0"),
     ("zero_uv.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/0 3/1\n", "line 5: a face has index 0"),
     ("zero_signed.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\r\nf 1 2 3\r\nf 1 2\t-00\r\n", "line 5: a face has index 0"),
+    # a face continued onto the next line (trimesh joins "\\\n"): the zero is on the file's line 5
+    ("zero_continued.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n0\n", "line 5: a face has index 0"),
     ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "a face has index 9, out of range (it has 3 vertices)"),
     ("back.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "a face has index -4, out of range"),
     ("huge.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n",
@@ -187,6 +189,23 @@ def test_the_zero_index_scan_does_not_depend_on_its_chunks(monkeypatch):
         for chunk in (1, 2, 3, 7, 64, 1 << 22):
             monkeypatch.setattr(mesh_files, "_ZERO_INDEX_CHUNK", chunk)
             assert mesh_files._obj_zero_index_line(data) == expected, (data, chunk)
+
+
+def test_a_continued_face_line_is_scanned_as_trimesh_joins_it(monkeypatch):
+    """trimesh joins a line ending in a backslash to the next (after turning
+    CRLF into LF) before reading it: ``f 1 2 \\`` then ``0`` is a zero index
+    (it was read as vertex 1 and reported as "only degenerate triangles"),
+    ``f 1 2\\`` then ``0`` is index 20, and a comment continued onto a face
+    line takes the face with it.  The line given is the file's own."""
+    cases = [(b"v 0 0 0\nf 1 2 \\\n0\n", 3), (b"v 0 0 0\nf 1 2\\\n0\n", None), (b"f 1 0\\\n5\n", None),
+             (b"f 1 \\\n\\\n0 2\n", 3), (b"# a note \\\nf 0 1 2\nf 1 2 3\n", None),
+             (b"f 1 2 3\r\nf 2 \\\r\n 0\r\n", 3), (b"v 0 0 0\nf 1 \\\n2 3\nf 0 1 2\n", 4),
+             (b"f \\\n-0 1 2", 2), (b"v 0 0 \\\n0\nf 1 2 \\\n\\\n3\nf 2 3 4\nf 1 2\\\n \\\n0", 9),
+             (b"f 1 2 3 \\\\\n0 1 2\n", None)]  # "\\\\\n": the second backslash continues; "0 1 2" joins it
+    for data, line in cases:
+        for chunk in (1, 3, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_ZERO_INDEX_CHUNK", chunk)
+            assert mesh_files._obj_zero_index_line(data) == line, (data, chunk)
 
 
 def test_a_directory_is_not_a_mesh(tmp_path):
