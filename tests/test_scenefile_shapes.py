@@ -436,6 +436,36 @@ def test_the_polygon_bound_is_what_trimesh_builds(monkeypatch):
                 assert bound(data, 10**6) == built, (data[:80], chunk)
 
 
+def test_the_polygon_bound_counts_lines_as_trimesh_splits_them(monkeypatch):
+    """trimesh splits a PLY's ASCII body and an OFF into lines with
+    str.splitlines: a lone CR (old Mac files) ends a line as LF and CRLF do,
+    and so do form feeds and vertical tabs.  The scan split at LF only, so a
+    CR-only OFF counted 0 triangles (its header's counts were read, then
+    nothing) and so did a PLY body with CR line ends."""
+    import io
+
+    rng = np.random.default_rng(7)
+    vertices = [b"%f %f %f" % tuple(v) for v in rng.random((30, 3))]
+    faces = [b"%d %s" % (len(p), b" ".join(b"%d" % i for i in p))
+             for p in (rng.integers(0, 30, rng.integers(3, 5)) for _ in range(40))]
+    head = (b"ply\nformat ascii 1.0\nelement vertex 30\nproperty float x\nproperty float y\nproperty float z\n"
+            b"element face 40\nproperty list uchar int vertex_indices\nend_header\n")
+    mixed = [b"\r", b"\n", b"\r\n", b"\f", b"\v"]  # what each line ends with, in turn
+    cases = [(head + b"\r".join(vertices + faces) + b"\r", "ply"),
+             (head + b"".join(line + mixed[i % 5] for i, line in enumerate(vertices + faces)), "ply"),
+             (b"OFF\r30 40 0\r" + b"\r".join(vertices + faces) + b"\r", "off"),
+             (b"OFF\r\r  30 40 0\r\n\r" + b"\r\r".join(vertices + faces), "off"),
+             (b"OFF 30 40 0" + b"".join(mixed[i % 5] + line for i, line in enumerate(vertices + faces)), "off")]
+    for data, ext in cases:
+        built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(data), file_type=ext,
+                                                              process=False).geometry.values())
+        bound = mesh_files._ply_triangle_bound if ext == "ply" else mesh_files._off_triangle_bound
+        assert built > 40
+        for chunk in (1, 5, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+            assert bound(data, 10**6) == built, (data[:80], chunk)
+
+
 def test_the_polygon_bound_never_exceeds_what_trimesh_builds_on_valid_files():
     """Layouts whose counts the scan cannot read (a flag or a uv list before a
     PLY's indices; an OFF in fixed-width columns) count what they can or
