@@ -466,6 +466,29 @@ def test_the_polygon_bound_counts_lines_as_trimesh_splits_them(monkeypatch):
             assert bound(data, 10**6) == built, (data[:80], chunk)
 
 
+def test_an_off_blank_line_longer_than_the_blanks_scanned_is_still_blank(monkeypatch):
+    """trimesh drops an OFF's blank lines however long; the scan looked at the
+    first 64 blanks only and took a longer blank line for a vertex or face
+    line, which shifted the faces it counted (78 of an icosphere's 80)."""
+    import io
+
+    lines = trimesh.exchange.off.export_off(trimesh.creation.icosphere(1)).encode().split(b"\n")
+    lines.insert(2, b" " * 100)
+    lines.insert(len(lines) - 10, b"\t" * 70 + b"\r")
+    lines.insert(len(lines) - 5, b"\t " * 40)
+    data = b"\n".join(lines)
+    built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(data), file_type="off",
+                                                          process=False).geometry.values())
+    assert built == 80
+    for chunk in (1, 5, 64, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._off_triangle_bound(data, 10**6) == built, chunk
+    # the last line of a span, blank to its end, is blank (its break is past the span)
+    a = np.frombuffer(b"1  \n   \n  x\n    ", dtype=np.uint8)
+    first = mesh_files._first_other_than_blank(a, np.array([1, 4, 8, 12]), np.array([3, 7, 11, 16]))
+    assert first.tolist() == [3, 7, 10, 16]
+
+
 def test_the_polygon_bound_never_exceeds_what_trimesh_builds_on_valid_files():
     """Layouts whose counts the scan cannot read (a flag or a uv list before a
     PLY's indices; an OFF in fixed-width columns) count what they can or

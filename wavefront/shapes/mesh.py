@@ -275,6 +275,20 @@ def _line_breaks(a: np.ndarray, low: int, high: int, only_newlines: bool) -> np.
     return np.flatnonzero(breaks) + low
 
 
+def _first_other_than_blank(a: np.ndarray, lead: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """For lines from ``lead`` to ``ends`` (sorted), the position of each one's
+    first byte other than a blank, or its end: one pass over their span, so
+    a blank line is blank however long (trimesh drops an OFF's blank lines;
+    taken for content, one shifted every face line after it)."""
+    low, high = int(lead[0]), int(ends[-1])
+    others = np.flatnonzero(~_BLANK[a[low:high]]) + low
+    at = np.searchsorted(others, lead)
+    found = at < others.size  # else blank to the span's end
+    first = ends.copy()
+    first[found] = np.minimum(others[at[found]], ends[found])
+    return first
+
+
 def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_lines_count: bool,
                    count_first: bool) -> int:
     """The triangles trimesh makes of ``count`` polygon lines ``n i1 ... in``
@@ -323,7 +337,12 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
                 break
             lead += step
         if not blank_lines_count:
-            content = (lead < ends) & ~_EMPTY[a[np.minimum(lead, n - 1)]]
+            first = lead  # each line's first byte other than a blank
+            deep = np.flatnonzero((lead < ends) & _BLANK[a[np.minimum(lead, n - 1)]])
+            if deep.size:  # lines of more than _LEADING_BLANKS blanks (rare): found for those alone
+                first = lead.copy()
+                first[deep] = _first_other_than_blank(a, lead[deep], ends[deep])
+            content = (first < ends) & ~_EMPTY[a[np.minimum(first, n - 1)]]
             starts, ends, lead = starts[content], ends[content], lead[content]
         index = np.arange(seen, seen + starts.size)
         seen += starts.size
