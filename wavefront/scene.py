@@ -135,9 +135,9 @@ class RenderSettings:
     ``integrator``         path      ``path`` or ``whitted``
     ``precision``          auto      ``float32``, ``float64``, or ``auto``:
                                      float32 for scenes within 256 units of
-                                     the origin (faster), and for a few
-                                     small spheres inside huge ones (path
-                                     integrator; see
+                                     the origin (faster), and for small
+                                     spheres inside huge ones, few or many
+                                     (path integrator, none moving; see
                                      ``geometry.FLOAT32_MAX_REACH``), else
                                      float64
     ``light_sampling``     true      ``path``: next-event estimation towards
