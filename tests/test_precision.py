@@ -270,3 +270,17 @@ def test_float32_huge_spheres_image_does_not_depend_on_workers_or_chunk_size():
     image = render_scene(scene, workers=1, chunk_size=4096).image
     np.testing.assert_array_equal(render_scene(scene, workers=1, chunk_size=300).image, image)
     assert_same_on_two_workers(scene, image, chunk_size=700)
+
+
+def test_cover_scene_float32_image_is_the_float64_image_and_a_wrong_power_is_rejected(monkeypatch):
+    """The cover scene through the BVH, anchored float32 against float64: the
+    per-block z-test of the Cornell room above, on the ground's horizon, the
+    carpet and the glass balls; the same wrong power of the origin must fail it."""
+    scene = load_scene(SCENES / "final_scene.yaml").with_overrides(width=48, height=28)
+    f64 = estimate(with_settings(scene, precision="float64"), 12, 300, samples_per_pixel=16)
+    f32 = estimate(scene, 12, 500, samples_per_pixel=16)
+    bad, z = rejected(f32, f64)
+    assert not bad, f"float32 differs from float64 (max |z| {z:.1f})"
+    monkeypatch.setattr(sphere_module, "anchored_roots", _wrong_power)
+    wrong = estimate(scene, 12, 700, samples_per_pixel=16)
+    assert rejected(wrong, f64)[0], "the z-test did not reject a wrong power of the origin"
