@@ -62,19 +62,21 @@ force's, exactly:
   by ``|t - h| dt / r`` (``|t - h| = sqrt_disc <= |big|``) plus ``dt^2 / 2r``:
   a few epsilons of ``|o - c| + r + |q|``, as with Haines' roots, which the
   pads cover (ROUNDING_PAD epsilons of the extent), as long as ``|big|`` is not
-  tiny.  ``|big| >= sqrt(|P|)`` (the larger root of two whose product is P),
-  and ``|P| >= e^2`` for an origin ``e`` off the sphere; so ``|big|`` is tiny
-  only for rays starting within a few thousandths of the surface (near a
-  tangent, the near root can land anywhere along the ray: measured up to 273
-  units from a ball of radius 0.2).  Those rays start inside their sphere's
-  padded boxes and padded bounding sphere by more than ``T_MIN``: an anchored
-  set's pad is at least ROUNDING_PAD float32 epsilons of ``2 FLOAT32_EXTENT``
-  (3.9e-3, see ``_build_traversal_tables``), so every box and the sphere pass
-  keep the pair whatever its root (entry <= 0, leave past the floor), and the
-  exact test decides, as in brute force.  Huge spheres in the leaves (more
-  than MAX_OUTSIZED of them) are held by the same bounds; the sphere pass's
-  own float32 rounding of ``reach^2 - |l|^2`` stays far below the ``8 r`` pads
-  by which the padded sphere's exceeds the sphere's.
+  tiny.  ``|big| >= sqrt(|P|)`` (the larger of two real roots whose product
+  is P), and ``|P| >= e^2`` for an origin ``e`` off the sphere, so ``|big| >=
+  e``: it is tiny only for rays starting within ``e`` of the surface (near a
+  tangent the near root can then land anywhere along the ray: measured up to
+  273 units from a ball of radius 0.2).  An anchored set's pad is at least
+  ROUNDING_PAD float32 epsilons of ``2 FLOAT32_EXTENT`` (3.9e-3, see
+  ``_build_traversal_tables``): a ray starting within ``pad - T_MIN`` of a
+  sphere starts inside its padded boxes and padded bounding sphere by more
+  than ``T_MIN``, so every box and the sphere pass keep that pair whatever its
+  root (entry <= 0, leave and far root past the floor) and the exact test
+  decides, as in brute force; rays from farther have ``|big| >= 2.9e-3`` and
+  the bounds above.  Huge spheres in the leaves (more than MAX_OUTSIZED of
+  them) are held by the same bounds; the sphere pass's own float32 rounding
+  of ``reach^2 - |l|^2`` stays far below the ``8 r pad`` by which the padded
+  sphere's exceeds the sphere's.
 (tests/test_bvh.py's anchored tests, with a shrunk pad, a leaf pad of 0,
 Haines' roots in the leaves or no relative ``t_min`` there as controls.)
 
