@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from wavefront import bvh as bvh_module
 from wavefront.accel import BVH_THRESHOLD, build_intersector
 from wavefront.bvh import LEAF_SIZE, BVH, build_levels
-from wavefront.geometry import T_MIN, precision_for
+from wavefront.geometry import FLOAT32_EXTENT, T_MIN, precision_for
 from wavefront.shapes import Primitives, QuadSet, SphereSet, TriangleSet
 from wavefront.shapes.base import exact_pad
 from wavefront.shapes.triangle import twice_area
@@ -475,3 +475,124 @@ def test_float32_floor_is_float32_down_of_t_min_less_shift():
         expected = bvh_module.float32_down(T_MIN - shift)
         actual = bvh_module.float32_floor(shift)
     np.testing.assert_array_equal(actual.view(np.int32), expected.view(np.int32))
+
+
+def anchored_scene(rng, m, ground_radius, huge_in_tree, scale=1.0):
+    """A float32 cover-like scene whose spheres are anchored (``SphereSet.anchored``):
+    a huge ground of ``ground_radius`` touching y = 0 (its reach twice that, beyond
+    FLOAT32_EXTENT), three balls of radius 1, a carpet of small balls around them
+    (some duplicated: ties go to the lower index), and with ``huge_in_tree`` twenty
+    huge walls more than the BVH tests outside its tree (MAX_OUTSIZED), so that
+    anchored huge spheres sit in its leaves too.  Returns the primitives and the
+    scene's extent (every sphere's reach)."""
+    k = m - 4
+    center = np.vstack((rng.uniform(-11, 11, k), rng.uniform(0.0, 0.4, k), rng.uniform(-11, 11, k))) * scale
+    radius = rng.uniform(0.05, 0.3, k) * rng.choice([1.0, 1.0, 1.0, 0.2, 0.02], k) * scale
+    center[:, 1], radius[1] = center[:, 0], radius[0]  # a duplicate
+    center = np.hstack(([[0.0], [-ground_radius], [0.0]], center, [[0.0, -4.0, 4.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]]))
+    radius = np.concatenate(([ground_radius], radius, [1.0, 1.0, 1.0]))
+    if huge_in_tree:
+        n_walls = bvh_module.MAX_OUTSIZED + 4
+        toward = normalize(rng.normal(size=(3, n_walls)))
+        wall_radius = rng.uniform(300.0, 1500.0, n_walls)
+        center = np.hstack((center, toward * (wall_radius + rng.uniform(15.0, 40.0, n_walls))))
+        radius = np.concatenate((radius, wall_radius))
+    spheres = SphereSet(center, radius, np.zeros(radius.size, np.int32), np.float32)
+    assert spheres.anchored
+    reach = np.linalg.norm(center, axis=0) + radius
+    return Primitives([spheres], np.float32), float(reach.max())
+
+
+def rays_in_an_anchored_scene(rng, prims, n, extent):
+    """Hostile float32 rays (origins within ``extent``): from a camera's region at
+    the carpet's silhouettes, from far out (beyond FLOAT32_EXTENT: a relative
+    t_min each) at sphere surfaces, and rays leaving where those hit (bounce
+    rays) outwards, inwards, along the surface to within 1e-9 of tangent (where
+    the anchored roots' product form is ill-conditioned), and from just over
+    T_MIN aimed back; and rays leaving the huge ground far out at grazing angles."""
+    spheres = prims.kinds[0]
+    c64, r64 = spheres.center.astype(np.float64), spheres.radius.astype(np.float64)
+    small = np.flatnonzero(r64 < 2.0)
+    target = small[rng.integers(0, small.size, n)]
+    on_surface = c64[:, target] + normalize(rng.normal(size=(3, n))) * r64[target]
+    origin = rng.uniform(-15, 15, (3, n)) + np.array([[0.0], [3.0], [0.0]])
+    far = rng.random(n) < 0.3
+    origin[:, far] = on_surface[:, far] + normalize(rng.normal(size=(3, far.sum()))) * \
+        rng.uniform(0.3, 1.0, far.sum()) * extent * 0.9
+    direction = normalize(on_surface - origin)
+    origin, direction = origin.astype(np.float32), direction.astype(np.float32)
+    first = prims.intersect(origin, direction)
+    on = np.flatnonzero(first.primitive_idx >= 0)
+    hit_sphere = first.primitive_idx[on]
+    start = origin[:, on].astype(np.float64) + first.t[on].astype(np.float64) * direction[:, on].astype(np.float64)
+    start = start.astype(np.float32)  # where the renderer's float32 bounce rays start
+    normal = normalize(start.astype(np.float64) - c64[:, hit_sphere])
+    leave = normalize(rng.normal(size=(3, on.size)))
+    third = on.size // 3
+    leave[:, :third] *= np.sign((leave[:, :third] * normal[:, :third]).sum(axis=0)) * \
+        rng.choice([1.0, 1.0, -1.0], third)  # outwards, a third of them inwards
+    along = normalize(np.cross(normal[:, third:2 * third], rng.normal(size=(3, third)), axis=0))
+    tilt = rng.choice([0.0, 1e-9, 1e-7, 1e-5, 1e-3], third) * rng.choice([-1.0, 1.0], third)
+    leave[:, third:2 * third] = normalize(along + tilt * normal[:, third:2 * third])
+    back = slice(2 * third, on.size)  # just over T_MIN out along the normal, aimed back
+    away = T_MIN * (1 + rng.choice([1e-6, 1e-3, 0.05, 1.0], on.size - 2 * third))
+    leave[:, back] = -normal[:, back]
+    start = start.astype(np.float64)
+    start[:, back] = start[:, back] + away * normal[:, back]
+    # the huge ground far out (up to a tenth of its radius from the carpet), rays leaving it grazing
+    g = n // 4
+    ground_radius = float(r64[0])
+    xz = rng.uniform(-0.1, 0.1, (2, g)) * ground_radius
+    ground = np.vstack((xz[0], np.sqrt(ground_radius ** 2 - (xz ** 2).sum(axis=0)) - ground_radius, xz[1]))
+    up = normalize(ground - c64[:, :1])
+    graze = normalize(np.cross(up, rng.normal(size=(3, g)), axis=0) + rng.choice([0.0, 1e-6, 1e-3, 0.05], g) * up)
+    # from far out at silhouettes: lines passing the centre at the radius, give or take
+    # a few float32 epsilons of the distance (where rounding decides hit or miss)
+    s = n // 4
+    aim = small[rng.integers(0, small.size, s)]
+    eye = c64[:, aim] + normalize(rng.normal(size=(3, s))) * rng.uniform(0.2, 0.9, s) * extent
+    view = normalize(c64[:, aim] - eye)
+    side = normalize(np.cross(view, rng.normal(size=(3, s)), axis=0))
+    distance = np.linalg.norm(c64[:, aim] - eye, axis=0)
+    miss = rng.choice([0.0, 1.0, 4.0, 16.0, 64.0], s) * rng.choice([-1.0, 1.0], s) * 2.0 ** -23 * distance
+    edge = c64[:, aim] + side * (r64[aim] + miss)
+    all_origin = np.hstack((origin.astype(np.float64), start, ground, eye))
+    all_direction = np.hstack((direction.astype(np.float64), leave, graze, edge - eye))
+    return all_origin.astype(np.float32), normalize(all_direction).astype(np.float32)
+
+
+@settings(deadline=None, max_examples=25)
+@given(st.integers(BVH_THRESHOLD, 500), st.integers(0, 2**32 - 1), st.sampled_from([300.0, 1000.0, 2000.0]),
+       st.booleans(), st.sampled_from(["inf", "finite", "nan"]))
+def test_bvh_agrees_on_anchored_float32_spheres(m, seed, ground_radius, huge_in_tree, limits):
+    """Float32 scenes with huge spheres run anchored (geometry.FLOAT32_MAX_REACH):
+    every sphere's exact test is anchored_roots, with a relative t_min for rays
+    from beyond FLOAT32_EXTENT.  The BVH must still give brute force's hits and
+    any-hits exactly: huge spheres outside the tree (the ground, the balls) and in
+    its leaves, rays from far out, grazing rays, rays leaving surfaces (to within
+    1e-9 of tangent, where the anchored small root is ill-conditioned and may
+    land far from the sphere), and t_max of inf, finite per ray, or with NaN and
+    -inf among finite ones."""
+    rng = np.random.default_rng(seed)
+    prims, reach = anchored_scene(rng, m, ground_radius, huge_in_tree)
+    origin, direction = rays_in_an_anchored_scene(rng, prims, 1500, reach)
+    n = origin.shape[1]
+    if limits == "inf":
+        t_max = np.inf
+    else:
+        t_max = rng.uniform(0.0, 30.0, n).astype(np.float32) * rng.choice([1.0, 1.0, 100.0], n).astype(np.float32)
+        if limits == "nan":
+            t_max[rng.random(n) < 0.1] = np.nan
+            t_max[rng.random(n) < 0.05] = -np.inf
+            t_max[rng.random(n) < 0.05] = T_MIN
+    extent = max(reach, float(np.abs(origin).max()) * np.sqrt(3))
+    bvh = BVH(prims, extent)
+    huge = np.flatnonzero(prims.kinds[0].radius > FLOAT32_EXTENT)
+    assert np.isin(huge, bvh.outsized).all() != huge_in_tree  # huge spheres in the leaves, or none there
+    assert (np.abs(origin).max(axis=0) > FLOAT32_EXTENT).any()  # some rays have a t_min of their own
+    brute = assert_same_hits(prims, origin, direction, t_max, extent)
+    assert (brute.primitive_idx > 0).sum() > n // 10
+    # and without an extent (the tree's own, a few units): an anchored set's pads stay wide
+    hits = BVH(prims).intersect(origin, direction, t_max)
+    np.testing.assert_array_equal(hits.primitive_idx, brute.primitive_idx)
+    np.testing.assert_array_equal(hits.t, brute.t)

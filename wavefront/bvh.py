@@ -43,6 +43,43 @@ far more than the rounding of those coordinates and of the slab arithmetic
 halves the bytes every level gathers and doubles the SIMD width, which is
 most of what a level costs.
 
+Float32 scenes with huge spheres (the cover scene's ground of radius 1000)
+test every sphere with the anchored roots (``geometry.anchored_roots``: the
+near root as the power of the origin over the far root, and a relative
+``t_min`` for rays from beyond ``FLOAT32_EXTENT``).  The hits are still brute
+force's, exactly:
+
+* the same arithmetic on the same numbers: the leaves' ``t_pairs`` run the
+  anchored test elementwise on the set's own float32 fields, and each ray's
+  ``t_min`` depends on its own origin only (one within FLOAT32_EXTENT gets
+  float32 ``T_MIN`` whatever shares its call); the outsized spheres (the
+  ground, the balls) are a subset of the same set, copied, tested by brute
+  force itself; ties go to the lower index in both;
+* no culled pair holds a hit.  Culling uses ``T_MIN``, at most any ray's
+  ``t_min``.  The anchored near root errs by ``dP / |big|``, ``dP`` a few
+  epsilons of ``|o - q| |o - q'|`` (and of the anchors' own rounding, ``|q|``);
+  near a root, moving along the ray by ``dt`` moves the point off the sphere
+  by ``|t - h| dt / r`` (``|t - h| = sqrt_disc <= |big|``) plus ``dt^2 / 2r``:
+  a few epsilons of ``|o - c| + r + |q|``, as with Haines' roots, which the
+  pads cover (ROUNDING_PAD epsilons of the extent), as long as ``|big|`` is not
+  tiny.  ``|big| >= sqrt(|P|)`` (the larger of two real roots whose product
+  is P), and ``|P| >= e^2`` for an origin ``e`` off the sphere, so ``|big| >=
+  e``: it is tiny only for rays starting within ``e`` of the surface (near a
+  tangent the near root can then land anywhere along the ray: measured up to
+  273 units from a ball of radius 0.2).  An anchored set's pad is at least
+  ROUNDING_PAD float32 epsilons of ``2 FLOAT32_EXTENT`` (3.9e-3, see
+  ``_build_traversal_tables``): a ray starting within ``pad - T_MIN`` of a
+  sphere starts inside its padded boxes and padded bounding sphere by more
+  than ``T_MIN``, so every box and the sphere pass keep that pair whatever its
+  root (entry <= 0, leave and far root past the floor) and the exact test
+  decides, as in brute force; rays from farther have ``|big| >= 2.9e-3`` and
+  the bounds above.  Huge spheres in the leaves (more than MAX_OUTSIZED of
+  them) are held by the same bounds; the sphere pass's own float32 rounding
+  of ``reach^2 - |l|^2`` stays far below the ``8 r pad`` by which the padded
+  sphere's exceeds the sphere's.
+(tests/test_bvh.py's anchored tests, with a shrunk pad, a leaf pad of 0,
+Haines' roots in the leaves or no relative ``t_min`` there as controls.)
+
 Small trees are stored once per ray octant (signs of the direction's
 components), with each child box's planes ordered nearest-first for that
 octant, so the slab test needs no min/max of its two planes per axis, and a
@@ -60,7 +97,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import T_MIN, escaped_at_inf
+from .geometry import FLOAT32_EXTENT, T_MIN, escaped_at_inf
 from .shapes import Hits, Primitives
 
 LEAF_SIZE = 4
@@ -656,6 +693,11 @@ class BVH:
         f32 = np.float32
         tree_extent = float(np.abs(boxes).max())
         rays_extent = tree_extent if self.extent is None else max(tree_extent, float(self.extent))
+        if any(getattr(kind, "anchored", False) for kind in self.primitives.kinds):
+            # an anchored set reaches past FLOAT32_EXTENT (its outsized spheres, whatever the
+            # tree's own extent): pads of at least 3.9e-3, several T_MIN, keep every pair whose
+            # ray starts near its sphere (see the module docstring), also without an extent
+            rays_extent = max(rays_extent, FLOAT32_EXTENT)
         pad = max(BOX_PAD * tree_extent, ROUNDING_PAD * float(np.finfo(self.primitives.dtype).eps) * 2 * rays_extent)
         # flat primitives accept hits up to their own (much smaller) pad outside their boxes
         pad += self.primitives.pad + float(np.finfo(f32).tiny)

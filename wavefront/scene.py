@@ -135,9 +135,9 @@ class RenderSettings:
     ``integrator``         path      ``path`` or ``whitted``
     ``precision``          auto      ``float32``, ``float64``, or ``auto``:
                                      float32 for scenes within 256 units of
-                                     the origin (faster), and for a few
-                                     small spheres inside huge ones (path
-                                     integrator; see
+                                     the origin (faster), and for small
+                                     spheres inside huge ones, few or many
+                                     (path integrator, none moving; see
                                      ``geometry.FLOAT32_MAX_REACH``), else
                                      float64
     ``light_sampling``     true      ``path``: next-event estimation towards
@@ -667,14 +667,11 @@ def _huge_spheres_fit_float32(scene: Scene, shapes) -> bool:
     horizon, where a hit's shading flips with rounding (0.5 % of
     whitted.yaml's pixels moved, by up to 0.12; in a path-traced image such
     flips are noise).  Moving spheres keep float64
-    (their anchors would move), and so do scenes of ``accel.BVH_THRESHOLD``
-    primitives or more: the BVH's float32 traversal pads its boxes for the
-    scene extent, and far positions with a relative ``t_min`` are not yet
-    checked there."""
-    from .accel import BVH_THRESHOLD
-
-    if (scene.render.integrator != "path" or len(scene.spheres) >= BVH_THRESHOLD
-            or any(s.center1 is not None for s in scene.spheres)):
+    (their anchors would move).  Scenes of ``accel.BVH_THRESHOLD`` spheres or
+    more (the cover scene) run anchored too: the BVH gives brute force's hits
+    exactly in float32 with anchored roots (see ``bvh.BVH``'s notes on anchored
+    sets and tests/test_bvh.py's anchored tests)."""
+    if scene.render.integrator != "path" or any(s.center1 is not None for s in scene.spheres):
         return False
     center, radius = shapes
     huge = radius > FLOAT32_EXTENT
