@@ -181,22 +181,17 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
     # the new paths' rays and states go straight into their columns
     origin, direction, state = field("origin", cs.dtype, 3), field("direction", cs.dtype, 3), field("state", np.uint64)
     exact = origin.dtype == cs.dtype  # else the rays are rounded to the render's precision first, as they always were
-    pos = 0
-    for block in job.blocks(start, stop):  # a unit's slots: a grid of pixels and sample indices
-        rows = slice(m + pos, m + pos + block.size)
-        grid = sampler.start_grid(block.pixel, block.sample_start, block.sample_stop)
-        state[rows] = block.flattened(grid)
-        u = block.flattened(sampler.pairs_grid(grid, 0))  # pixel jitter
+    pos = m
+    for size, pixel, new_state, u, lens in _new_samples(sampler, job, start, stop, frame.has_defocus):
+        rows = slice(pos, pos + size)
+        state[rows] = new_state
         if pixel_centres:
             u = np.full(u.shape, 0.5)
-        # a pinhole never reads the lens pair: not drawing it changes no number
-        lens = block.flattened(sampler.pairs_grid(grid, 1)) if frame.has_defocus else None
         # in float64, then rounded to the render's precision
-        rays = frame.generate_rays(block.repeated(block.pixel), u, lens, cs.dtype,
-                                   (origin[:, rows], direction[:, rows]) if exact else None)
+        rays = frame.generate_rays(pixel, u, lens, cs.dtype, (origin[:, rows], direction[:, rows]) if exact else None)
         if not exact:
             origin[:, rows], direction[:, rows] = rays
-        pos += block.size
+        pos = rows.stop
     # motion blur (RTOW book 2): the camera ray's time, from its own pair;
     # only a scene with something moving draws it
     time = sampler.uniform(state[m:], TIME_PAIR, 0) if cs.shapes.moving else None
@@ -215,6 +210,34 @@ def camera_paths(cs: CompiledScene, frame, sampler: Sampler, job: Job, start: in
         # camera rays start in the media around the camera
         media_mask=None if media is None else field("media_mask", np.uint64, value=media.camera_mask),
     )
+
+
+# A refill whose units have at least this many samples a pixel makes its new
+# paths' states and camera pairs unit by unit, as grids of pixels and sample
+# indices (each pixel's and each index's words made once: see
+# Sampler.start_grid); one with fewer, path by path (a grid of few samples
+# saves little, and the first passes' units are small: a refill of 40 Ki
+# paths spans ten of them, and a trace of one sample a pixel took 5.6 % longer
+# unit by unit, ~300 NumPy calls a unit).
+GRID_MIN_SAMPLES = 8
+
+
+def _new_samples(sampler: Sampler, job: Job, start: int, stop: int, defocus: bool):
+    """The new paths of slots ``start:stop``, in pieces of consecutive slots:
+    each piece's size, pixels (size,), states (size,) and camera pairs (the
+    pixel jitter, and the lens sample or None for a pinhole, which never
+    reads it: not drawing it changes no number), each (2, size)."""
+    blocks = job.blocks(start, stop)  # a unit's slots: a grid of pixels and sample indices
+    if all(block.sample_stop - block.sample_start >= GRID_MIN_SAMPLES for block in blocks):
+        for block in blocks:
+            grid = sampler.start_grid(block.pixel, block.sample_start, block.sample_stop)
+            yield (block.size, block.repeated(block.pixel), block.flattened(grid),
+                   block.flattened(sampler.pairs_grid(grid, 0)),
+                   block.flattened(sampler.pairs_grid(grid, 1)) if defocus else None)
+        return
+    pixel, sample_id = job.samples(start, stop)
+    state = sampler.start(pixel, sample_id)
+    yield stop - start, pixel, state, sampler.pairs(state, 0), sampler.pairs(state, 1) if defocus else None
 
 
 def _joined(old, n, dtype, rows=None, value=None):
