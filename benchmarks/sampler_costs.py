@@ -4,9 +4,12 @@
     .venv/bin/python benchmarks/sampler_costs.py --compare-tree /work/main --runs 5
 
 What W1's refill and every bounce pay per path: the slots' pixels and sample
-ids (``Job.samples``), the sampler's per-path state (``Sampler.start``), one
-pair of uniforms (``Sampler.pairs``: the camera's, an int pair in float64, and
-a bounce's, one pair per path in float32, as W1 draws them), the camera rays
+ids (``Job.samples``), the sampler's per-path state (``Sampler.start``; a
+refill's, as a grid of a unit's pixels and sample indices,
+``Sampler.start_grid``, where the tree has it), one pair of uniforms
+(``Sampler.pairs``: an int pair in float64, as the camera's were, and a
+bounce's, one pair per path in float32, as W1 draws them; the camera's as a
+grid, ``Sampler.pairs_grid``, where the tree has it), the camera rays
 (``CameraFrame.generate_rays``, W1's camera with defocus) and the whole of
 ``camera_paths``; in ns per path, at a wavefront of 32 Ki paths of W1's
 16-sample passes.  Each tree runs in its own fresh process (cwd = that tree,
@@ -66,14 +69,22 @@ def ns(f, reps=40):
         times.append(time.perf_counter() - t0)
     return statistics.median(times) / N * 1e9
 
-print(json.dumps({
+figures = {
     "Job.samples": ns(lambda: job.samples(1000, 1000 + N)),
     "Sampler.start": ns(lambda: sampler.start(pixel, sample_id)),
     "pairs: camera (int, float64)": ns(lambda: sampler.pairs(state, 0)),
     "pairs: bounce (per path, float32)": ns(lambda: sampler.pairs(state, pair, np.float32)),
     "generate_rays (defocus)": ns(lambda: frame.generate_rays(pixel, u)),
     "camera_paths": ns(lambda: camera_paths(cs, frame, sampler, job, 1000, 1000 + N)),
-}))
+}
+if hasattr(sampler, "start_grid"):  # a refill's grids (trees since session 11)
+    block = max(job.blocks(1000, 1000 + N), key=lambda b: b.size)
+    grid = sampler.start_grid(block.pixel, block.sample_start, block.sample_stop)
+    per_path = N / grid.size  # ns() divides by N
+    figures["Sampler.start_grid"] = per_path * ns(lambda: sampler.start_grid(block.pixel, block.sample_start,
+                                                                              block.sample_stop))
+    figures["pairs_grid: camera (float64)"] = per_path * ns(lambda: sampler.pairs_grid(grid, 0))
+print(json.dumps(figures))
 """
 
 
@@ -97,7 +108,8 @@ def main(argv=None) -> None:
     print(f"| ns per path (min of {args.runs}) | " + " | ".join(label for label, _ in trees) + " |")
     print("|---|" + "---|" * len(trees))
     for name, by_tree in figures.items():
-        print(f"| {name} | " + " | ".join(f"{min(by_tree[label]):.1f}" for label, _ in trees) + " |")
+        print(f"| {name} | " + " | ".join(f"{min(by_tree[label]):.1f}" if by_tree[label] else "-"
+                                          for label, _ in trees) + " |")
 
 
 if __name__ == "__main__":

@@ -522,29 +522,25 @@ def test_sobol_pair_as_int_or_per_path_gives_the_same_numbers(pair):
 
 
 @pytest.mark.parametrize("kind", SAMPLERS)
-@pytest.mark.parametrize("run", [1, 3, 8, 16, 100])
-def test_words_per_pixel_run_are_those_per_path(kind, run):
-    """Sampler.start and Sampler.pairs given the paths' pixel runs (new
-    paths: per-pixel words computed once a run and repeated) give every
-    path's state and numbers bit for bit, runs cut at both ends and of
-    uneven lengths included."""
-    spp = 100
+@pytest.mark.parametrize("spp, sample_start, sample_stop", [(100, 0, 1), (100, 1, 3), (100, 16, 32), (100, 96, 100),
+                                                            (7, 0, 7), (1, 0, 1), (70000, 65000, 65040)])
+def test_grids_of_new_paths_are_their_paths(kind, spp, sample_start, sample_stop):
+    """Sampler.start_grid and Sampler.pairs_grid (a refill's new paths: per-pixel
+    and per-index words made once and combined) give every path's state and
+    numbers bit for bit, pixel-major, in both precisions, past the index
+    table's bits too."""
     sampler = Sampler(scene_key(8), spp, kind)
-    rng = np.random.default_rng(8)
-    pixel = np.repeat(rng.integers(0, 10**6, 5000 // run + 2), rng.integers(1, 2 * run, 5000 // run + 2))[3:3003]
-    sample_id = (pixel * spp + rng.integers(0, spp, pixel.size)).astype(np.uint64)
-    runs = sampler.runs(pixel)
-    if kind == "independent" or run < 8:
-        assert runs is None  # nothing shared per pixel, or runs too short to pay
-    elif run > 8:
-        assert runs is not None
-    assert Sampler(scene_key(8), 7, kind).runs(pixel) is None  # no run of 7 samples a pixel is longer
-    state = sampler.start(pixel, sample_id)
-    np.testing.assert_array_equal(sampler.start(pixel, sample_id, runs), state)
+    pixel = np.random.default_rng(8).integers(0, 10**6, 37)
+    index = np.arange(sample_start, sample_stop)
+    grid = sampler.start_grid(pixel, sample_start, sample_stop)
+    assert grid.shape == (37, index.size) and grid.dtype == np.uint64
+    state = sampler.start(np.repeat(pixel, index.size), (pixel[:, None] * spp + index).ravel().astype(np.uint64))
+    np.testing.assert_array_equal(grid.ravel(), state)
     for pair in (0, 1, 9, TIME_PAIR):
         for dtype in (np.float64, np.float32):
-            np.testing.assert_array_equal(sampler.pairs(state, pair, dtype, runs=runs),
-                                          sampler.pairs(state, pair, dtype))
+            u = sampler.pairs_grid(grid, pair, dtype)
+            assert u.shape == (2, 37, index.size) and u.dtype == dtype
+            np.testing.assert_array_equal(u.reshape(2, -1), sampler.pairs(state, pair, dtype))
 
 
 @pytest.mark.parametrize("kind", SAMPLERS)

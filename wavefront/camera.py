@@ -182,7 +182,8 @@ class CameraFrame:
     defocus_v: np.ndarray
     has_defocus: bool
 
-    def generate_rays(self, pixel: np.ndarray, u: np.ndarray, lens: np.ndarray | None = None, dtype=np.float64):
+    def generate_rays(self, pixel: np.ndarray, u: np.ndarray, lens: np.ndarray | None = None, dtype=np.float64,
+                      out: tuple[np.ndarray, np.ndarray] | None = None):
         """Primary rays for flat pixel indices, jittered over the pixel square.
 
         Parameters
@@ -199,13 +200,16 @@ class CameraFrame:
             The results' type.  The rays are always made in float64; float32
             results are those rounded, block by block while the block is in
             cache (not a float64 copy of the whole batch rounded later).
+        out : (origin, direction), optional
+            Arrays of shape (3, N) and type ``dtype`` (views, say, of a
+            batch's new columns) to write the rays into, and return.
 
         Returns
         -------
         origin, direction : ndarray of shape (3, N); directions are unit.
         """
         n = pixel.shape[0]
-        origin, direction = np.empty((3, n), dtype=dtype), np.empty((3, n), dtype=dtype)
+        origin, direction = (np.empty((3, n), dtype=dtype), np.empty((3, n), dtype=dtype)) if out is None else out
         rounded = np.dtype(dtype) != np.float64
         if rounded:
             block = min(n, RAY_BLOCK)

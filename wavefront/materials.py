@@ -316,11 +316,21 @@ def scatter_metal(direction, normal, front_face, albedo, fuzz, u, out=None):
     """
     reflected = reflect(direction, normal)
     normalize(reflected, out=reflected)
-    scattered = fuzz * random_unit_vector(u[0], u[1])
-    if scattered.dtype == np.result_type(scattered, reflected):
-        scattered += reflected  # reflected + jitter in the jitter's array (a sum commutes exactly)
+    if not fuzz.any() and np.result_type(fuzz, u, reflected) == reflected.dtype:
+        # Perfect mirrors (gold in RTIOW's scenes): each jitter is a signed
+        # zero, and adding one changes no number but a -0 (to +0, where the
+        # zero is +0), so only rows with a zero component need theirs.
+        scattered = reflected
+        rows = true_rows((reflected == 0.0).any(axis=0))
+        if rows.size:
+            jitter = gather(fuzz, rows) * random_unit_vector(u[0].take(rows), u[1].take(rows))
+            scatter(scattered, rows, gather(reflected, rows) + jitter)
     else:
-        scattered = reflected + scattered
+        scattered = fuzz * random_unit_vector(u[0], u[1])
+        if scattered.dtype == np.result_type(scattered, reflected):
+            scattered += reflected  # reflected + jitter in the jitter's array (a sum commutes exactly)
+        else:
+            scattered = reflected + scattered
     absorbed = dot(scattered, normal) <= 0.0
     return albedo, normalize(scattered, out=scattered if out is None else out), absorbed
 

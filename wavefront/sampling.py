@@ -591,55 +591,15 @@ def _to_unit(v: np.ndarray, dtype) -> np.ndarray:
 
 
 # A refill's new paths come pixel by pixel (a unit's slots are its pixels,
-# each repeated for the pass's samples), and with the sobol sampler what
-# depends on the pixel alone -- the hash of the state's high word, a fixed
-# pair's three seed words and its multiplier -- is the same for every sample
-# of a run of equal pixels: computed once per run and repeated.  At 41 Ki
-# camera paths, 32 samples a pixel, repeating a pair's four rows costs 16 us
-# against 90 for computing them per path; at 4 a pixel the repeat costs 70
-# (it copies 4 bytes at a time), so below RUN_MIN paths a run on average the
-# runs are not used.
-RUN_MIN = 8
-# pixel_runs looks at every RUN_PROBE-th neighbouring pair first (~3 us on
-# 41 Ki paths, against ~25 for the full pass), so batches of short runs (a
-# render of few samples a pixel, its first passes) cost next to nothing.
-RUN_PROBE = 16
-
-
-@dataclass(frozen=True, slots=True)
-class PixelRuns:
-    """Runs of equal consecutive pixels in a batch of new paths: run ``r``
-    is paths ``first[r] : first[r] + length[r]``, all of one pixel.
-
-    first, length : ndarray of shape (M,), int64
-    """
-
-    first: np.ndarray
-    length: np.ndarray
-
-    def repeat(self, per_run: np.ndarray) -> np.ndarray:
-        """Each run's value (the last axis, M) repeated over its paths (N)."""
-        return np.repeat(per_run, self.length, axis=-1)
-
-
-def pixel_runs(pixel: np.ndarray) -> PixelRuns | None:
-    """The runs of equal consecutive values of ``pixel`` (N,), or None when
-    they are shorter than ``RUN_MIN`` paths on average (then per-path work
-    is cheaper than repeating per-run work)."""
-    n = pixel.shape[0]
-    if n < RUN_MIN * RUN_PROBE:
-        return None
-    probe = pixel[1::RUN_PROBE] != pixel[:-1:RUN_PROBE]
-    if np.count_nonzero(probe) * RUN_MIN > probe.shape[0]:
-        return None
-    change = np.flatnonzero(pixel[1:] != pixel[:-1])
-    if (change.size + 1) * RUN_MIN > n:
-        return None
-    first = np.empty(change.size + 1, dtype=np.int64)
-    first[0] = 0
-    np.add(change, 1, out=first[1:])
-    length = np.diff(first, append=n)
-    return PixelRuns(first, length)
+# each repeated for the pass's samples): Sampler.start_grid and pairs_grid
+# make them as a grid of pixels and sample indices, and with the sobol
+# sampler what depends on the pixel alone (the hash of the state's high word,
+# a fixed pair's three seed words and its multiplier) or on the index alone
+# (its premixed, reversed bits) once per pixel or index.  (They used to be
+# found as runs of equal pixels in the paths' pixel indices, and each path's
+# index recovered from its sample id: 15 ns a camera path in W1's render at
+# 30 spp, with the slots' pixels and ids, against 7.5 for the grids and
+# their blocks.)
 
 
 SAMPLERS = ("sobol", "independent")
@@ -678,11 +638,10 @@ class Sampler:
         """Bits of the sample index (``spp <= 2^index_bits``)."""
         return (self.samples_per_pixel - 1).bit_length()
 
-    def start(self, pixel: np.ndarray, sample_id: np.ndarray, runs: PixelRuns | None = None) -> np.ndarray:
+    def start(self, pixel: np.ndarray, sample_id: np.ndarray) -> np.ndarray:
         """Per-path state (uint64, shape (N,)) of the samples ``sample_id =
-        pixel * samples_per_pixel + sample index`` of pixels ``pixel``
-        (``runs``: :func:`pixel_runs` of ``pixel``, if known: the pixel's
-        part of the state is then hashed once per run)."""
+        pixel * samples_per_pixel + sample index`` of pixels ``pixel`` (see
+        :meth:`start_grid` for a grid of them)."""
         sample_id = sample_id.astype(np.uint64, copy=False)
         if self.kind == "independent":
             return path_state(self.key, sample_id)
@@ -692,18 +651,47 @@ class Sampler:
         index = pixel * np.uint64(self.samples_per_pixel)
         np.subtract(sample_id, index, out=index)
         index = index.astype(np.uint32)
-        state = self._pixel_words(pixel) if runs is None else runs.repeat(self._pixel_words(pixel.take(runs.first)))
+        state = self._pixel_words(pixel)
         state |= _premixed_reversed_index(index, self.index_bits)
         return state
 
-    def runs(self, pixel: np.ndarray) -> PixelRuns | None:
-        """:func:`pixel_runs` of new paths' ``pixel``, for :meth:`start` and
-        :meth:`pairs`; None for the independent sampler, whose numbers share
-        nothing per pixel, and below RUN_MIN samples a pixel (no run of a
-        pixel's samples is longer: nothing to look for)."""
-        if self.kind != "sobol" or self.samples_per_pixel < RUN_MIN:
-            return None
-        return pixel_runs(pixel)
+    def start_grid(self, pixel: np.ndarray, sample_start: int, sample_stop: int) -> np.ndarray:
+        """``(P, S)`` uint64: the states of samples ``sample_start:sample_stop``
+        (S of them) of each of pixels ``pixel`` (P,) int64, as :meth:`start`
+        makes them (a refill's new paths: see :class:`wavefront.units.SampleBlock`).
+
+        With the sobol sampler a state is its pixel's word ORed with its
+        index's, each made once (P and S of them) and combined in one
+        broadcast pass.  (A pass over ``(P, S)`` broadcast so runs its
+        inner loop S elements at a time, slower than a contiguous pass for
+        small S, but no slower than the repeats it saves.)"""
+        index = np.arange(sample_start, sample_stop, dtype=np.uint64)
+        if self.kind == "independent":
+            return path_state(self.key, pixel.astype(np.uint64)[:, None] * np.uint64(self.samples_per_pixel) + index)
+        words = self._pixel_words(pixel.astype(np.uint64))
+        return words[:, None] | _premixed_reversed_index(index.astype(np.uint32), self.index_bits)
+
+    def pairs_grid(self, state: np.ndarray, pair: int, dtype=np.float64) -> np.ndarray:
+        """``(2, P, S)``: :meth:`pairs` of a grid of states from :meth:`start_grid`
+        (the same numbers; ``pair`` an int).
+
+        With the sobol sampler, what depends on the pixel alone (the pair's
+        seed words and multiplier) is made once per pixel and repeated over
+        its samples, once for the pair's ~10 passes over it.  (Broadcast
+        instead, each pass over ``(P, S)`` runs its inner loop S elements at a
+        time: with 16 samples a pixel 23 us on 40 Ki paths against 4, plus 7
+        for the one repeat.)"""
+        if self.kind != "sobol":
+            return self.pairs(state.ravel(), pair, dtype).reshape((2,) + state.shape)
+        samples = state.shape[1]
+        words = np.empty((SEED_ROWS + 1, state.shape[0]), dtype=np.uint32)
+        words[:SEED_ROWS] = pair_seeds(pixel_seeds(state[:, 0]), pair)
+        words[SEED_ROWS] = scramble_multiplier(words)
+        if samples > 1:
+            words = words.repeat(samples, axis=1)
+        flat = state.reshape(-1)
+        v = sobol_words(flat, words[:SEED_ROWS], self.index_bits, _halves(flat)[0], multiplier=words[SEED_ROWS])
+        return _to_unit(v, dtype).reshape((2,) + state.shape)
 
     def _pixel_words(self, pixel: np.ndarray) -> np.ndarray:
         """The high words of the sobol states of pixels ``pixel`` (uint64, low words zero)."""
@@ -712,19 +700,9 @@ class Sampler:
         state ^= (state >> _S16) & _HIGH32  # the seed hash's first step (see pair_seeds), once per path
         return state
 
-    def pairs(self, state: np.ndarray, pair, dtype=np.float64, runs: PixelRuns | None = None) -> np.ndarray:
+    def pairs(self, state: np.ndarray, pair, dtype=np.float64) -> np.ndarray:
         """Uniforms for pair ``pair`` (an int, or one per path) of each path;
-        shape (2, N).  ``runs``: the :func:`pixel_runs` of the paths' pixels,
-        if known (new paths: the pair's words are then computed once per
-        run; an int ``pair`` only)."""
-        if runs is not None and self.kind == "sobol" and isinstance(pair, (int, np.integer)):
-            low, high = _halves(state)
-            words = np.empty((SEED_ROWS + 1, runs.first.shape[0]), dtype=np.uint32)
-            words[:SEED_ROWS] = pair_seeds(high.take(runs.first), pair)
-            words[SEED_ROWS] = scramble_multiplier(words)
-            words = runs.repeat(words)
-            return _to_unit(sobol_words(state, words[:SEED_ROWS], self.index_bits, low,
-                                        multiplier=words[SEED_ROWS]), dtype)
+        shape (2, N)."""
         if not isinstance(pair, (int, np.integer)) and pair.size and pair[0] == pair[-1] and pair.min() == pair.max():
             # every path at the same depth (a batch no refill has mixed): the
             # pair's own hash once, not per path (the same numbers; see

@@ -149,6 +149,34 @@ def plan_units(width: int, height: int, samples_per_pixel: int) -> UnitPlan:
     return UnitPlan(width, height, samples_per_pixel)
 
 
+@dataclass(frozen=True, slots=True)
+class SampleBlock:
+    """Consecutive slots of one unit: the grid of its pixels ``pixel`` (P,)
+    int64 (flat image indices, in slot order) times the sample indices
+    ``sample_start:sample_stop`` (S of them), pixel-major (slot ``p * S + s``
+    is sample ``sample_start + s`` of pixel ``p``), cut to the slots
+    ``cut`` of its ``P * S``: the first and last pixels may have only some
+    of their samples among the slots."""
+
+    pixel: np.ndarray
+    sample_start: int
+    sample_stop: int
+    cut: slice
+
+    @property
+    def size(self) -> int:
+        """The slots: ``cut``'s length."""
+        return self.cut.stop - self.cut.start
+
+    def repeated(self, per_pixel: np.ndarray) -> np.ndarray:
+        """Per-slot values ``(size,)`` of per-pixel values ``(P,)``."""
+        return np.repeat(per_pixel, self.sample_stop - self.sample_start)[self.cut]
+
+    def flattened(self, grid: np.ndarray) -> np.ndarray:
+        """Per-slot values ``(..., size)`` of a grid ``(..., P, S)`` (a view)."""
+        return grid.reshape(grid.shape[:-2] + (-1,))[..., self.cut]
+
+
 class Job:
     """The samples of consecutive units, numbered by one run of slots."""
 
@@ -160,17 +188,13 @@ class Job:
         self.offsets = np.concatenate(([0], np.cumsum(sizes)))
         self.size = int(self.offsets[-1])
 
-    def samples(self, start: int, stop: int):
-        """Pixel index (int64) and global sample id (uint64) of slots ``start:stop``.
-
-        Unit by unit (a refill spans a few units): a unit's slots are its
-        tile's pixels, each repeated for the pass's samples, so the run is
-        the pixels it touches repeated, cut at both ends.  (A search, two
-        divisions and five gathers per slot cost 14 ns a slot; this, 2.)
-        """
+    def blocks(self, start: int, stop: int) -> list[SampleBlock]:
+        """Slots ``start:stop`` unit by unit (a refill spans a few units), as
+        :class:`SampleBlock` grids: a unit's slots are its tile's pixels, each
+        repeated for the pass's samples, so a run of them is the pixels it
+        touches times the pass's samples, cut at both ends."""
+        out = []
         n = stop - start
-        pixel = np.empty(n, dtype=np.int64)
-        sample_id = np.empty(n, dtype=np.uint64)
         k = int(np.searchsorted(self.offsets, start, side="right")) - 1
         pos = 0
         while pos < n:
@@ -183,13 +207,25 @@ class Job:
             ys = np.arange(unit.y0 + r0, unit.y0 + -(-p1 // tile_width), dtype=np.int64)
             xs = np.arange(unit.x0, unit.x1, dtype=np.int64)
             pix = (ys[:, None] * self.width + xs).ravel()[p0 - r0 * tile_width:p1 - r0 * tile_width]
-            cut = slice(a - p0 * per, b - p0 * per)
-            pixel[pos:pos + b - a] = np.repeat(pix, per)[cut]
-            ids = np.repeat(pix.astype(np.uint64) * np.uint64(self.samples_per_pixel) + np.uint64(unit.sample_start), per)
-            ids += np.tile(np.arange(per, dtype=np.uint64), p1 - p0)
-            sample_id[pos:pos + b - a] = ids[cut]
+            out.append(SampleBlock(pix, unit.sample_start, unit.sample_stop, slice(a - p0 * per, b - p0 * per)))
             pos += b - a
             k += 1
+        return out
+
+    def samples(self, start: int, stop: int):
+        """Pixel index (int64) and global sample id (uint64) of slots
+        ``start:stop``, from :meth:`blocks`.  (A search, two divisions and
+        five gathers per slot cost 14 ns a slot; this, 2.)"""
+        n = stop - start
+        pixel = np.empty(n, dtype=np.int64)
+        sample_id = np.empty(n, dtype=np.uint64)
+        pos = 0
+        for block in self.blocks(start, stop):
+            rows = slice(pos, pos + block.size)
+            pixel[rows] = block.repeated(block.pixel)
+            ids = block.pixel.astype(np.uint64)[:, None] * np.uint64(self.samples_per_pixel)
+            sample_id[rows] = block.flattened(ids + np.arange(block.sample_start, block.sample_stop, dtype=np.uint64))
+            pos = rows.stop
         return pixel, sample_id
 
     def reduce(self, radiance: np.ndarray):
