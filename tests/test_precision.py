@@ -203,6 +203,26 @@ def test_root_keys_are_nearest_root_bit_for_bit(dtype):
     assert hit.sum() > 1000 and (~hit).sum() > 500
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_chunked_block_keys_are_the_whole_blocks(dtype, monkeypatch):
+    """key_block's keys, fused (sphere_root_keys) and in chunks of rays
+    (KEY_BLOCK_BYTES), are nearest_root_key's over the whole block, bit for bit."""
+    rng = np.random.default_rng(5)
+    m, n = 7, 5000
+    spheres = SphereSet(rng.uniform(-3, 3, (3, m)), rng.uniform(0.2, 2, m), np.zeros(m, np.int32), dtype)
+    origin = rng.uniform(-4, 4, (3, n)).astype(dtype)
+    direction = normalize(rng.normal(size=(3, n))).astype(dtype)
+    whole = nearest_root_key(*sphere_roots(*spheres.block(0, m), origin[:, None, :], direction[:, None, :]))
+    monkeypatch.setattr(sphere_module, "KEY_MIN_RAYS", 64)
+    for budget in (1 << 30, 999 * m * np.dtype(dtype).itemsize, 64 * m * np.dtype(dtype).itemsize):
+        monkeypatch.setattr(sphere_module, "KEY_BLOCK_BYTES", budget)
+        keys = spheres.key_block(0, m, origin, direction)
+        assert keys.dtype == whole.dtype and keys.shape == (m, n)
+        np.testing.assert_array_equal(keys, whole)
+        np.testing.assert_array_equal(spheres.key_block(2, 5, origin, direction), whole[2:5])
+    assert 0.3 < (key_root(whole.min(axis=0)) < np.inf).mean() < 0.9  # rays that hit and rays that miss
+
+
 def test_root_keys_negative_control():
     """A key made with T_MIN's own bits, not the next float's, accepts a root at T_MIN: the test above sees it."""
     t_min = np.float32(T_MIN)
