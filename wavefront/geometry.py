@@ -310,7 +310,9 @@ def _sphere_roots(center, radius_squared, origin, direction):
     disc -= oz
     with np.errstate(invalid="ignore"):
         sqrt_disc = np.sqrt(disc, out=disc)
-    return h, sqrt_disc, (oy if oy.shape == h.shape else None)
+    # (rays of mixed types, as some tests pass, leave one of another type or shape)
+    spare = oy if oy.shape == h.shape == sqrt_disc.shape and oy.dtype == h.dtype == sqrt_disc.dtype else None
+    return h, sqrt_disc, spare
 
 
 def sphere_root_keys(center, radius_squared, origin, direction, out=None):

@@ -5,20 +5,22 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, key_root, limit_key,
-                        nearest_root_key, roots_key, sphere_root_keys, sphere_roots)
+                        roots_key, sphere_root_keys, sphere_roots)
 from ..vecmath import gather
 from .base import ShapeKind
 
 __all__ = ["Sphere", "SphereSet", "world_sphere", "world_center1", "world_rotation"]
 
 # Bytes of one (spheres, rays) temporary of :meth:`SphereSet.key_block`: a
-# larger block is keyed in chunks of rays, so that the exact test's five
-# temporaries stay in L2.  W2's outsized spheres (4 in float64, calls of up to
-# 16,384 rays inside the BVH's batches), its recorded calls of a 600x338
-# render replayed in one process: the keys ~15 % faster in two chunks of
-# 8,192 (256 KiB a temporary) than at once (in four of 4,096 no faster);
-# W1's 5 x 8,192 float32 blocks (160 KiB) stay whole.
-KEY_BLOCK_BYTES = 1 << 18
+# larger block is keyed in equal chunks of rays, so that the exact test's
+# five temporaries stay in L2.  W2's outsized spheres (4 in float64, calls of
+# up to 16,384 rays inside the BVH's batches), its recorded calls of a 600x338
+# render replayed through brute force in one process, alternating: the keys
+# alone ~15 % faster in chunks of 5,000-8,192 rays than at once (4,096 or
+# fewer: no faster); the whole brute force at this budget (16,384 rays in
+# three chunks) 0.92-0.96 of 1 << 18 (two chunks), 1.07-1.13 of 1 << 30
+# (none).  W1's 5 x 8,192 float32 blocks (160 KiB) stay whole.
+KEY_BLOCK_BYTES = 3 << 16
 KEY_MIN_RAYS = 1024  # never chunks of fewer rays: each costs ~26 NumPy calls
 
 
@@ -191,7 +193,8 @@ class SphereSet(ShapeKind):
         if n <= step:
             return sphere_root_keys(center, radius_squared, o, d)
         step = -(-n // -(-n // step))  # chunks of equal size
-        keys = np.empty((stop - start, n), dtype=f"u{self.dtype.itemsize}")  # the keys' unsigned type
+        width = np.result_type(self.dtype, origin.dtype).itemsize  # the roots' type's, whose unsigned twin keys them
+        keys = np.empty((stop - start, n), dtype=f"u{width}")
         for a in range(0, n, step):
             sphere_root_keys(center, radius_squared, o[..., a:a + step], d[..., a:a + step], out=keys[:, a:a + step])
         return keys
@@ -228,12 +231,13 @@ class SphereSet(ShapeKind):
         o, d = origin[:, None, :], direction[:, None, :]
         if self.anchored:
             a, b, t_min = anchored_roots(*fields, o, d)
+        elif isinstance(t_max, np.ndarray) and t_max.dtype == np.result_type(self.dtype, origin.dtype):
+            # keyed: a root in (T_MIN, t_max) is a key below t_max's, six
+            # passes over the block where the two roots' comparisons took nine
+            # (key_block's keys: fused, and chunked in a large block)
+            return self.key_block(start, stop, origin, direction) < limit_key(t_max)
         else:
             h, sqrt_disc = sphere_roots(*fields, o, d)
-            if isinstance(t_max, np.ndarray) and t_max.dtype == h.dtype:
-                # keyed: a root in (T_MIN, t_max) is a key below t_max's, six
-                # passes over the block where the two roots' comparisons took nine
-                return nearest_root_key(h, sqrt_disc) < limit_key(t_max)
             a, b, t_min = h - sqrt_disc, h + sqrt_disc, T_MIN
         if np.ndim(t_min) == 0 and isinstance(t_max, np.ndarray) and t_max.dtype == a.dtype:
             # every ray's t_min is T_MIN, and the comparisons were in the roots' type: keyed,
