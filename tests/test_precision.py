@@ -223,6 +223,35 @@ def test_chunked_block_keys_are_the_whole_blocks(dtype, monkeypatch):
     assert 0.3 < (key_root(whole.min(axis=0)) < np.inf).mean() < 0.9  # rays that hit and rays that miss
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shared", [(0,), (1,), (2,), (0, 2), (1, 2), (0, 1, 2)])
+def test_shared_coordinates_key_as_full_blocks(dtype, shared):
+    """A coordinate every sphere shares is keyed as one row (key_block), with
+    the keys of the full block bit for bit; a subset finds its own."""
+    rng = np.random.default_rng(7)
+    m, n = 6, 3000
+    center = rng.uniform(-3, 3, (3, m))
+    center[list(shared)] = center[list(shared), :1]
+    spheres = SphereSet(center, rng.uniform(0.3, 2, m), np.zeros(m, np.int32), dtype)
+    assert spheres.shared_axes == tuple(a for a in shared if not (a == 1 and 0 in shared))
+    origin = rng.uniform(-4, 4, (3, n)).astype(dtype)
+    origin[:, :50] = spheres.center[:, :1]  # rays from a centre: differences of exactly 0
+    direction = normalize(rng.normal(size=(3, n))).astype(dtype)
+    whole = nearest_root_key(*sphere_roots(*spheres.block(0, m), origin[:, None, :], direction[:, None, :]))
+    np.testing.assert_array_equal(spheres.key_block(0, m, origin, direction), whole)
+    np.testing.assert_array_equal(spheres.key_block(1, 4, origin, direction), whole[1:4])
+    assert 0.1 < (key_root(whole.min(axis=0)) < np.inf).mean() < 0.95  # rays that hit and rays that miss
+    part = spheres.subset(np.array([0, 5]))
+    part.center[:, 1] += 1.0  # apart on every axis: nothing shared any more
+    assert part.subset(np.arange(2)).shared_axes == ()
+
+
+def test_shared_coordinates_compare_bits():
+    """0.0 and -0.0 are one value but not one row: c - o differs in the sign of a zero."""
+    spheres = SphereSet(np.array([[0.0, -0.0], [1, 2], [1, 1]]), np.ones(2), np.zeros(2, np.int32))
+    assert spheres.shared_axes == (2,)
+
+
 def test_root_keys_negative_control():
     """A key made with T_MIN's own bits, not the next float's, accepts a root at T_MIN: the test above sees it."""
     t_min = np.float32(T_MIN)

@@ -112,6 +112,29 @@ class SphereSet(ShapeKind):
             # taken from the rounded centres: c + 1 * v then lands on it
             end = np.asarray(velocity, dtype=np.float64).reshape(3, -1) + center
             self.velocity = np.ascontiguousarray(end.astype(dtype) - self.center)
+        self.shared_axes = self._shared_axes()
+
+    def _shared_axes(self) -> tuple[int, ...]:
+        """The coordinates (0, 1, 2 for x, y, z) that every sphere of the set
+        shares, bit for bit, where there are two or more spheres: W1's and
+        W2's grounds and balls all stand at one z.  :meth:`key_block` passes
+        each as one row (see ``geometry._sphere_roots``), the x and y not
+        both.  Measured on their recorded brute-force calls, alternating in
+        one process: the keys 7-9 % faster (W1, 5 x 8,192 float32 blocks)
+        and ~7 % (W2's outsized spheres, 4 in float64, in chunks)."""
+        m = len(self.radius)
+        if m < 2:
+            return ()
+        bits = self.center.view(f"u{self.dtype.itemsize}")  # bits, not values: -0.0 is not 0.0 here
+        axes = [i for i in range(3) if (bits[i] == bits[i, 0]).all()]
+        if 0 in axes and 1 in axes:
+            axes.remove(1)
+        return tuple(axes)
+
+    def subset(self, idx):
+        part = super().subset(idx)
+        part.shared_axes = part._shared_axes()
+        return part
 
     @classmethod
     def build(cls, spheres: list[Sphere], material_idx, dtype) -> SphereSet:
@@ -188,6 +211,8 @@ class SphereSet(ShapeKind):
         if self.velocity is not None and time is not None:
             center = center + self.velocity[:, start:stop, None] * np.asarray(time).astype(self.dtype, copy=False)
             return sphere_root_keys(center, radius_squared, o, d)
+        if self.shared_axes and stop - start > 1 and origin.dtype == direction.dtype == self.dtype:
+            center = [center[i][:1] if i in self.shared_axes else center[i] for i in range(3)]
         n = origin.shape[1]
         step = max(KEY_MIN_RAYS, KEY_BLOCK_BYTES // ((stop - start) * self.dtype.itemsize))
         if n <= step:
