@@ -246,6 +246,25 @@ def test_shared_coordinates_key_as_full_blocks(dtype, shared):
     assert part.subset(np.arange(2)).shared_axes == ()
 
 
+@pytest.mark.parametrize("types", [(np.float32, np.float64, np.float32), (np.float32, np.float32, np.float64),
+                                   (np.float64, np.float32, np.float64)])
+def test_any_hit_of_mixed_types_is_the_nearest_roots(types):
+    """Rays and limits of other types than the set's: the any-hit test
+    (keyed where the limit has the roots' type) answers as t_block does."""
+    origin_type, direction_type, limit_type = types
+    rng = np.random.default_rng(9)
+    m, n = 5, 4000
+    center = rng.uniform(-3, 3, (3, m))
+    center[2] = 0.5  # a shared coordinate too
+    spheres = SphereSet(center, rng.uniform(0.3, 2, m), np.zeros(m, np.int32), np.float32)
+    origin = rng.uniform(-4, 4, (3, n)).astype(origin_type)
+    direction = normalize(rng.normal(size=(3, n))).astype(direction_type)
+    t_max = rng.uniform(0, 8, n).astype(limit_type)
+    expected = (spheres.t_block(0, m, origin, direction) < t_max).any(axis=0)
+    np.testing.assert_array_equal(spheres.any_hit_block(0, m, origin, direction, t_max), expected)
+    assert 0.1 < expected.mean() < 0.9
+
+
 def test_shared_coordinates_compare_bits():
     """0.0 and -0.0 are one value but not one row: c - o differs in the sign of a zero."""
     spheres = SphereSet(np.array([[0.0, -0.0], [1, 2], [1, 1]]), np.ones(2), np.zeros(2, np.int32))

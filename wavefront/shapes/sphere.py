@@ -231,7 +231,7 @@ class SphereSet(ShapeKind):
         if n <= step:
             return sphere_root_keys(center, radius_squared, o, d)
         step = -(-n // -(-n // step))  # chunks of equal size
-        width = np.result_type(self.dtype, origin.dtype).itemsize  # the roots' type's, whose unsigned twin keys them
+        width = np.result_type(self.dtype, origin.dtype, direction.dtype).itemsize  # the roots' (unsigned twin: keys)
         keys = np.empty((stop - start, n), dtype=f"u{width}")
         for a in range(0, n, step):
             sphere_root_keys(center, radius_squared, o[..., a:a + step], d[..., a:a + step], out=keys[:, a:a + step])
@@ -269,7 +269,7 @@ class SphereSet(ShapeKind):
         o, d = origin[:, None, :], direction[:, None, :]
         if self.anchored:
             a, b, t_min = anchored_roots(*fields, o, d)
-        elif isinstance(t_max, np.ndarray) and t_max.dtype == np.result_type(self.dtype, origin.dtype):
+        elif isinstance(t_max, np.ndarray) and t_max.dtype == np.result_type(self.dtype, origin.dtype, direction.dtype):
             # keyed: a root in (T_MIN, t_max) is a key below t_max's, six
             # passes over the block where the two roots' comparisons took nine
             # (key_block's keys: fused, and chunked in a large block)
