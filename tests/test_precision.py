@@ -231,6 +231,74 @@ def test_root_keys_are_nearest_root_bit_for_bit(dtype):
     assert hit.sum() > 1000 and (~hit).sum() > 500
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_chunked_block_keys_are_the_whole_blocks(dtype, monkeypatch):
+    """key_block's keys, fused (sphere_root_keys) and in chunks of rays
+    (KEY_BLOCK_BYTES), are nearest_root_key's over the whole block, bit for bit."""
+    rng = np.random.default_rng(5)
+    m, n = 7, 5000
+    spheres = SphereSet(rng.uniform(-3, 3, (3, m)), rng.uniform(0.2, 2, m), np.zeros(m, np.int32), dtype)
+    origin = rng.uniform(-4, 4, (3, n)).astype(dtype)
+    direction = normalize(rng.normal(size=(3, n))).astype(dtype)
+    whole = nearest_root_key(*sphere_roots(*spheres.block(0, m), origin[:, None, :], direction[:, None, :]))
+    monkeypatch.setattr(sphere_module, "KEY_MIN_RAYS", 64)
+    for budget in (1 << 30, 999 * m * np.dtype(dtype).itemsize, 64 * m * np.dtype(dtype).itemsize):
+        monkeypatch.setattr(sphere_module, "KEY_BLOCK_BYTES", budget)
+        keys = spheres.key_block(0, m, origin, direction)
+        assert keys.dtype == whole.dtype and keys.shape == (m, n)
+        np.testing.assert_array_equal(keys, whole)
+        np.testing.assert_array_equal(spheres.key_block(2, 5, origin, direction), whole[2:5])
+    assert 0.3 < (key_root(whole.min(axis=0)) < np.inf).mean() < 0.9  # rays that hit and rays that miss
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shared", [(0,), (1,), (2,), (0, 2), (1, 2), (0, 1, 2)])
+def test_shared_coordinates_key_as_full_blocks(dtype, shared):
+    """A coordinate every sphere shares is keyed as one row (key_block), with
+    the keys of the full block bit for bit; a subset finds its own."""
+    rng = np.random.default_rng(7)
+    m, n = 6, 3000
+    center = rng.uniform(-3, 3, (3, m))
+    center[list(shared)] = center[list(shared), :1]
+    spheres = SphereSet(center, rng.uniform(0.3, 2, m), np.zeros(m, np.int32), dtype)
+    assert spheres.shared_axes == tuple(a for a in shared if not (a == 1 and 0 in shared))
+    origin = rng.uniform(-4, 4, (3, n)).astype(dtype)
+    origin[:, :50] = spheres.center[:, :1]  # rays from a centre: differences of exactly 0
+    direction = normalize(rng.normal(size=(3, n))).astype(dtype)
+    whole = nearest_root_key(*sphere_roots(*spheres.block(0, m), origin[:, None, :], direction[:, None, :]))
+    np.testing.assert_array_equal(spheres.key_block(0, m, origin, direction), whole)
+    np.testing.assert_array_equal(spheres.key_block(1, 4, origin, direction), whole[1:4])
+    assert 0.1 < (key_root(whole.min(axis=0)) < np.inf).mean() < 0.95  # rays that hit and rays that miss
+    part = spheres.subset(np.array([0, 5]))
+    part.center[:, 1] += 1.0  # apart on every axis: nothing shared any more
+    assert part.subset(np.arange(2)).shared_axes == ()
+
+
+@pytest.mark.parametrize("types", [(np.float32, np.float64, np.float32), (np.float32, np.float32, np.float64),
+                                   (np.float64, np.float32, np.float64)])
+def test_any_hit_of_mixed_types_is_the_nearest_roots(types):
+    """Rays and limits of other types than the set's: the any-hit test
+    (keyed where the limit has the roots' type) answers as t_block does."""
+    origin_type, direction_type, limit_type = types
+    rng = np.random.default_rng(9)
+    m, n = 5, 4000
+    center = rng.uniform(-3, 3, (3, m))
+    center[2] = 0.5  # a shared coordinate too
+    spheres = SphereSet(center, rng.uniform(0.3, 2, m), np.zeros(m, np.int32), np.float32)
+    origin = rng.uniform(-4, 4, (3, n)).astype(origin_type)
+    direction = normalize(rng.normal(size=(3, n))).astype(direction_type)
+    t_max = rng.uniform(0, 8, n).astype(limit_type)
+    expected = (spheres.t_block(0, m, origin, direction) < t_max).any(axis=0)
+    np.testing.assert_array_equal(spheres.any_hit_block(0, m, origin, direction, t_max), expected)
+    assert 0.1 < expected.mean() < 0.9
+
+
+def test_shared_coordinates_compare_bits():
+    """0.0 and -0.0 are one value but not one row: c - o differs in the sign of a zero."""
+    spheres = SphereSet(np.array([[0.0, -0.0], [1, 2], [1, 1]]), np.ones(2), np.zeros(2, np.int32))
+    assert spheres.shared_axes == (2,)
+
+
 def test_root_keys_negative_control():
     """A key made with T_MIN's own bits, not the next float's, accepts a root at T_MIN: the test above sees it."""
     t_min = np.float32(T_MIN)

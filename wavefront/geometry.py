@@ -281,6 +281,21 @@ def sphere_roots(center, radius_squared, origin, direction):
     ``sqrt_disc`` rather than a separate mask: every comparison with NaN is
     false, so :func:`nearest_root` turns it into ``inf`` with no extra pass.
     """
+    h, sqrt_disc, _ = _sphere_roots(center, radius_squared, origin, direction)
+    return h, sqrt_disc
+
+
+def _sphere_roots(center, radius_squared, origin, direction):
+    """:func:`sphere_roots`, and a spent temporary of ``h``'s shape (or None)
+    that :func:`sphere_root_keys` writes a root into.
+
+    A coordinate that every sphere of a block shares may come as one row
+    (``(1, 1)`` where the others are ``(M, 1)``; see
+    :meth:`~wavefront.shapes.SphereSet.key_block`), the x and y not both:
+    its difference and its term of ``h`` are then rows of the rays, two
+    passes over the block fewer, and the numbers are those of full blocks
+    (each sum is written into its full operand: addition commutes exactly).
+    """
     ox = center[0] - origin[0]
     oy = center[1] - origin[1]
     oz = center[2] - origin[2]
@@ -289,21 +304,48 @@ def sphere_roots(center, radius_squared, origin, direction):
     # nine, which a float64 block of 4 x 8192 (W2's outsized spheres) keeps in L2
     h = np.multiply(direction[0], ox)
     scratch = np.multiply(direction[1], oy)
+    if h.size < scratch.size:  # a shared x: its row's term is added to y's
+        h, scratch = scratch, h
     h += scratch
-    h += np.multiply(direction[2], oz, out=scratch)
+    if scratch.size < h.size:  # the shared coordinate's row: a block to work in
+        scratch = np.empty_like(h)
+    h += np.multiply(direction[2], oz, out=scratch if oz.size == h.size else None)
     # each component of l = oc - h d, squared and taken off r^2 in turn
-    ox -= np.multiply(h, direction[0], out=scratch)
-    ox *= ox
-    disc = np.subtract(radius_squared, ox, out=ox)
-    oy -= np.multiply(h, direction[1], out=scratch)
-    oy *= oy
-    disc -= oy
-    oz -= np.multiply(h, direction[2], out=scratch)
-    oz *= oz
-    disc -= oz
+    lx = _offset_squared(ox, h, direction[0], scratch)
+    disc = np.subtract(radius_squared, lx, out=lx if lx is ox else None)  # (else scratch, needed again)
+    disc -= _offset_squared(oy, h, direction[1], scratch)
+    disc -= _offset_squared(oz, h, direction[2], scratch)
     with np.errstate(invalid="ignore"):
         sqrt_disc = np.sqrt(disc, out=disc)
-    return h, sqrt_disc
+    # (rays of mixed types, as some tests pass, leave one of another type or shape)
+    spare = oy if oy.shape == h.shape == sqrt_disc.shape and oy.dtype == h.dtype == sqrt_disc.dtype else None
+    return h, sqrt_disc, spare
+
+
+def _offset_squared(oc, h, direction, scratch):
+    """``(oc - h d)^2``, one component of the centre's offset from the ray's
+    line squared: in ``oc``'s block, or in ``scratch`` where ``oc`` is a row."""
+    np.multiply(h, direction, out=scratch)
+    offset = np.subtract(oc, scratch, out=oc if oc.size == scratch.size else scratch)
+    offset *= offset
+    return offset
+
+
+def sphere_root_keys(center, radius_squared, origin, direction, out=None):
+    """``nearest_root_key(*sphere_roots(...))``, the same keys, with the two
+    roots written into :func:`sphere_roots`' spent temporaries (``h``'s and
+    one of its own) rather than into two new arrays: a new array's first
+    writes miss the cache.  (W2's outsized spheres, its recorded calls:
+    ~3 % faster than the two calls; see ``KEY_BLOCK_BYTES`` in
+    :mod:`wavefront.shapes.sphere` for the larger gain of its ray chunks.)
+    ``out``: an array of keys to write the result into (else a new one)."""
+    h, sqrt_disc, spare = _sphere_roots(center, radius_squared, origin, direction)
+    bits, first, _ = _ROOT_KEYS[h.dtype]
+    near = np.subtract(h, sqrt_disc, out=spare).view(bits)
+    near -= first
+    far = np.add(h, sqrt_disc, out=h).view(bits)
+    far -= first
+    return np.minimum(near, far, out=near if out is None else out)
 
 
 # each float type's unsigned twin and its sign bit (anchored_roots' copysign)

@@ -5,11 +5,36 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import (FLOAT32_EXTENT, T_MIN, Sphere, anchored_roots, first_root, key_root, limit_key,
-                        nearest_root_key, roots_key, sphere_roots)
+                        roots_key, sphere_root_keys, sphere_roots)
 from ..vecmath import gather
 from .base import ShapeKind
 
 __all__ = ["Sphere", "SphereSet", "world_sphere", "world_center1", "world_rotation"]
+
+# Bytes of one (spheres, rays) temporary of :meth:`SphereSet.key_block`: a
+# larger block is keyed in equal chunks of rays, so that the exact test's
+# five temporaries stay in L2.  W2's outsized spheres (4 in float64, calls of
+# up to 16,384 rays inside the BVH's batches), its recorded calls of a 600x338
+# render replayed through brute force in one process, alternating: the keys
+# alone ~15 % faster in chunks of 5,000-8,192 rays than at once (4,096 or
+# fewer: no faster); the whole brute force at this budget (16,384 rays in
+# three chunks) 0.92-0.96 of 1 << 18 (two chunks), 1.07-1.13 of 1 << 30
+# (none).  W1's 5 x 8,192 float32 blocks (160 KiB) stay whole.
+KEY_BLOCK_BYTES = 3 << 16
+KEY_MIN_RAYS = 1024  # never chunks of fewer rays: each costs ~26 NumPy calls
+# Tried in session 11, not kept (the same recorded calls):
+# - cheap pre-culls before the exact test.  A ray starting above a ground's
+#   top plane and heading up cannot hit it, but that is 18 % of W1's rays and
+#   21 % of W2's, while the ground is hit by 59 % and 49 % (no cull can leave
+#   fewer survivors than that); a ray heading away from a sphere (h <= 0):
+#   30-43 % per sphere.  W2's three balls (hit by 15 % of the rays) in their
+#   common box: a float64 slab test of 16,384 rays took 150-230 us against
+#   ~450 us for the balls' keys, and camera batches keep 81-91 % of their rays
+#   (the camera looks at the balls): 291-365 us with the cull where 17 % or
+#   fewer enter, 615-760 us where most do;
+# - W1's 5 x 8,192 float32 blocks in chunks of 4,096 or 2,731 rays: 1.23x and
+#   1.35x slower; the five temporaries as 64-byte aligned views of one
+#   workspace (with and without aligned copies of the rays): no faster.
 
 
 def world_sphere(sphere: Sphere) -> tuple[np.ndarray, float]:
@@ -100,6 +125,29 @@ class SphereSet(ShapeKind):
             # taken from the rounded centres: c + 1 * v then lands on it
             end = np.asarray(velocity, dtype=np.float64).reshape(3, -1) + center
             self.velocity = np.ascontiguousarray(end.astype(dtype) - self.center)
+        self.shared_axes = self._shared_axes()
+
+    def _shared_axes(self) -> tuple[int, ...]:
+        """The coordinates (0, 1, 2 for x, y, z) that every sphere of the set
+        shares, bit for bit, where there are two or more spheres: W1's and
+        W2's grounds and balls all stand at one z.  :meth:`key_block` passes
+        each as one row (see ``geometry._sphere_roots``), the x and y not
+        both.  Measured on their recorded brute-force calls, alternating in
+        one process: the keys 7-9 % faster (W1, 5 x 8,192 float32 blocks)
+        and ~7 % (W2's outsized spheres, 4 in float64, in chunks)."""
+        m = len(self.radius)
+        if m < 2:
+            return ()
+        bits = self.center.view(f"u{self.dtype.itemsize}")  # bits, not values: -0.0 is not 0.0 here
+        axes = [i for i in range(3) if (bits[i] == bits[i, 0]).all()]
+        if 0 in axes and 1 in axes:
+            axes.remove(1)
+        return tuple(axes)
+
+    def subset(self, idx):
+        part = super().subset(idx)
+        part.shared_axes = part._shared_axes()
+        return part
 
     @classmethod
     def build(cls, spheres: list[Sphere], material_idx, dtype) -> SphereSet:
@@ -172,9 +220,22 @@ class SphereSet(ShapeKind):
                 return roots_key(first_root(a, b, t_min))
             return roots_key(a, b)
         center, radius_squared = self.block(start, stop)
+        o, d = origin[:, None, :], direction[:, None, :]
         if self.velocity is not None and time is not None:
             center = center + self.velocity[:, start:stop, None] * np.asarray(time).astype(self.dtype, copy=False)
-        return nearest_root_key(*sphere_roots(center, radius_squared, origin[:, None, :], direction[:, None, :]))
+            return sphere_root_keys(center, radius_squared, o, d)
+        if self.shared_axes and stop - start > 1 and origin.dtype == direction.dtype == self.dtype:
+            center = [center[i][:1] if i in self.shared_axes else center[i] for i in range(3)]
+        n = origin.shape[1]
+        step = max(KEY_MIN_RAYS, KEY_BLOCK_BYTES // ((stop - start) * self.dtype.itemsize))
+        if n <= step:
+            return sphere_root_keys(center, radius_squared, o, d)
+        step = -(-n // -(-n // step))  # chunks of equal size
+        width = np.result_type(self.dtype, origin.dtype, direction.dtype).itemsize  # the roots' (unsigned twin: keys)
+        keys = np.empty((stop - start, n), dtype=f"u{width}")
+        for a in range(0, n, step):
+            sphere_root_keys(center, radius_squared, o[..., a:a + step], d[..., a:a + step], out=keys[:, a:a + step])
+        return keys
 
     def t_pairs(self, idx, origin, direction, time=None):
         if self.velocity is None or time is None:
@@ -208,12 +269,13 @@ class SphereSet(ShapeKind):
         o, d = origin[:, None, :], direction[:, None, :]
         if self.anchored:
             a, b, t_min = anchored_roots(*fields, o, d)
+        elif isinstance(t_max, np.ndarray) and t_max.dtype == np.result_type(self.dtype, origin.dtype, direction.dtype):
+            # keyed: a root in (T_MIN, t_max) is a key below t_max's, six
+            # passes over the block where the two roots' comparisons took nine
+            # (key_block's keys: fused, and chunked in a large block)
+            return self.key_block(start, stop, origin, direction) < limit_key(t_max)
         else:
             h, sqrt_disc = sphere_roots(*fields, o, d)
-            if isinstance(t_max, np.ndarray) and t_max.dtype == h.dtype:
-                # keyed: a root in (T_MIN, t_max) is a key below t_max's, six
-                # passes over the block where the two roots' comparisons took nine
-                return nearest_root_key(h, sqrt_disc) < limit_key(t_max)
             a, b, t_min = h - sqrt_disc, h + sqrt_disc, T_MIN
         if np.ndim(t_min) == 0 and isinstance(t_max, np.ndarray) and t_max.dtype == a.dtype:
             # every ray's t_min is T_MIN, and the comparisons were in the roots' type: keyed,
@@ -231,7 +293,7 @@ class SphereSet(ShapeKind):
         the same roots as :func:`~wavefront.geometry.nearest_root`, in seven passes
         instead of nine and without its error-state context (~6 against ~11 us for a
         BVH batch's ~1,700 leaf tests)."""
-        return key_root(nearest_root_key(*sphere_roots(center, radius_squared, origin, direction)))
+        return key_root(sphere_root_keys(center, radius_squared, origin, direction))
 
     def surface(self, idx, origin, direction, t, uv: bool, time=None):
         point = t * direction
