@@ -304,12 +304,12 @@ def _sphere_roots(center, radius_squared, origin, direction):
     # nine, which a float64 block of 4 x 8192 (W2's outsized spheres) keeps in L2
     h = np.multiply(direction[0], ox)
     scratch = np.multiply(direction[1], oy)
-    if h.size < scratch.size:  # a shared x: its row's term is added to y's
+    if h.shape[0] < scratch.shape[0]:  # a shared x: its row's term is added to y's
         h, scratch = scratch, h
     h += scratch
-    if scratch.size < h.size:  # the shared coordinate's row: a block to work in
+    if scratch.shape[0] < h.shape[0]:  # the shared coordinate's row: a block to work in
         scratch = np.empty_like(h)
-    h += np.multiply(direction[2], oz, out=scratch if oz.size == h.size else None)
+    h += np.multiply(direction[2], oz, out=scratch if oz.shape == h.shape else None)
     # each component of l = oc - h d, squared and taken off r^2 in turn
     lx = _offset_squared(ox, h, direction[0], scratch)
     disc = np.subtract(radius_squared, lx, out=lx if lx is ox else None)  # (else scratch, needed again)
@@ -326,7 +326,7 @@ def _offset_squared(oc, h, direction, scratch):
     """``(oc - h d)^2``, one component of the centre's offset from the ray's
     line squared: in ``oc``'s block, or in ``scratch`` where ``oc`` is a row."""
     np.multiply(h, direction, out=scratch)
-    offset = np.subtract(oc, scratch, out=oc if oc.size == scratch.size else scratch)
+    offset = np.subtract(oc, scratch, out=oc if oc.shape == scratch.shape else scratch)
     offset *= offset
     return offset
 
