@@ -310,3 +310,23 @@ def test_fill_moves_the_last_paths_into_the_holes():
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
     assert got.origin.flags.c_contiguous and got.throughput.flags.c_contiguous
     assert got.time is None and got.media_mask is None
+
+
+@pytest.mark.parametrize("unused", ["dielectric", "metal", "lambertian"])
+def test_a_material_no_shape_uses_changes_nothing(unused):
+    """A scene may define materials it does not use (a scene file's library of
+    them): the render is the image without them, bit for bit.  An unused
+    dielectric was the last scatter kernel, and the run of glass rows the
+    bounce loop looked up did not exist (IndexError; session 11's review)."""
+    from wavefront import Dielectric, Metal
+
+    spare = {"dielectric": Dielectric(1.5), "metal": Metal((0.9, 0.9, 0.9), fuzz=0.1),
+             "lambertian": Lambertian((0.2, 0.4, 0.6))}[unused]
+    base = Scene(spheres=[Sphere((0, 0, -1), 0.5, "m"), Sphere((-1, 0, -1), 0.5, "floor"),
+                          Sphere((0, -100.5, -1), 100, "floor")],
+                 materials={"m": Metal((0.9, 0.9, 0.9), fuzz=0.0), "floor": Lambertian((0.5, 0.5, 0.5))},
+                 camera=Camera(look_from=(0, 0.3, 1), look_at=(0, 0, -1), vfov=60)).with_overrides(
+                     width=24, samples_per_pixel=4)
+    with_spare = base.replace(materials={**base.materials, "spare": spare})
+    expected = render_scene(base, workers=1).image
+    np.testing.assert_array_equal(render_scene(with_spare, workers=1).image, expected)

@@ -322,7 +322,10 @@ class KernelGroups:
             if tuple(codes) == (table.code("dielectric"),):
                 glass = k
         of_hit = np.concatenate(([np.int8(-1)], of_material.take(cs.shapes.material_idx)))
-        return cls(of_hit, int(of_hit.max()) + 1, glass)
+        # every kernel has a group (and a run), also one no primitive uses: a
+        # dielectric material that no shape had was the last kernel, and the
+        # glass run it indexed did not exist
+        return cls(of_hit, max(len(kernels), int(of_hit.max()) + 1), glass)
 
     def of(self, primitive_idx) -> np.ndarray:
         """``(N,)`` int8: each row's group, -1 for a miss."""
