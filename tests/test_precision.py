@@ -19,6 +19,7 @@ import wavefront.shapes.sphere as sphere_module
 from wavefront import Dielectric, Metal, Sphere, load_scene
 from wavefront.geometry import (FLOAT32_EXTENT, T_MIN, anchored_roots, first_root, key_root, nearest_root,
                                 nearest_root_key, sphere_roots)
+from wavefront.bvh import BVH
 from wavefront.scene import precision_of
 from wavefront.shapes import Primitives, SphereSet
 from wavefront.vecmath import normalize
@@ -158,6 +159,56 @@ def test_rays_leaving_a_huge_wall_never_find_it_again_in_float32():
     self_hits = haines < np.inf
     assert self_hits.sum() >= 20 and haines[self_hits].max() < 1.0  # all of them within a unit of the origin
 
+
+
+def ball_departures(rng, n):
+    """A float32 cover-like set (anchored: a ground of radius 1000 under a
+    grid of balls of radius 0.2, 2 units apart, their tops 5 units above it),
+    and float32 rays leaving points on the balls within 1e-9..1e-6 of tangent
+    (or exactly along it), half of them tilted inwards: each ray's two true
+    roots are 0 and ~0.4 cos, below T_MIN.  Returns the set, the rays and
+    the index of the ball each ray leaves."""
+    grid = np.arange(-4, 5) * 2.0
+    x, z = np.meshgrid(grid, grid)
+    center = np.vstack(([0.0, -1000.0, 0.0], np.stack((x.ravel(), np.full(x.size, 4.8), z.ravel()), axis=1))).T
+    radius = np.concatenate(([1000.0], np.full(x.size, 0.2)))
+    spheres = SphereSet(center, radius, np.zeros(radius.size, np.int32), np.float32)
+    ball = rng.integers(1, radius.size, n)
+    c = spheres.center.astype(np.float64)[:, ball]
+    origin = (c + 0.2 * normalize(rng.normal(size=(3, n)))).astype(np.float32)
+    normal = normalize(origin.astype(np.float64) - c)
+    along = normalize(np.cross(normal, rng.normal(size=(3, n)), axis=0))
+    tilt = rng.choice([0.0, 1e-9, 1e-8, 1e-7, 1e-6], n) * rng.choice([-1.0, 1.0], n)
+    return spheres, origin, normalize(along + tilt * normal).astype(np.float32), ball
+
+
+def test_rays_leaving_a_small_ball_near_tangent_never_find_it_again_in_float32():
+    """The anchored small root is the power of the origin over the big root:
+    within ~1e-9 of tangent the big root is ~1e-10 and the power rounding
+    noise, so the quotient landed anywhere (self-hits up to hundreds of
+    units from a ball of radius 0.2: the negative control, that arithmetic
+    uncapped).  Capped at |big| it stays below T_MIN: no ray finds its own
+    ball again, in brute force or the BVH, nearest hit or any hit (within
+    0.5, where nothing else can be met)."""
+    rng = np.random.default_rng(12)
+    spheres, origin, direction, ball = ball_departures(rng, 20000)
+    assert spheres.anchored
+    prims = Primitives([spheres], np.float32)
+    for intersector in (prims, BVH(prims, 2000.0)):
+        hits = intersector.intersect(origin, direction)
+        assert not (hits.primitive_idx == ball).any()
+        for t_max in (np.float32(0.5), np.full(ball.size, 0.5, dtype=np.float32)):  # compared per root, and keyed
+            assert not intersector.occluded(origin, direction, t_max).any()
+    # the negative control: the same quotient, uncapped
+    fields = [np.take(f, ball, axis=-1) for f in (spheres.center, spheres.radius_squared, spheres.near_point,
+                                                  spheres.far_point)]
+    h, sqrt_disc = sphere_roots(fields[0], fields[1], origin, direction)
+    big = h + np.copysign(sqrt_disc, h)
+    power = ((origin - fields[2]) * (origin - fields[3])).sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        small = power / big
+    self_hits = (small > T_MIN) & (small < np.inf)
+    assert self_hits.sum() >= 100 and small[self_hits].max() > 10.0
 
 def test_anchored_float32_hits_lie_on_the_float64_spheres():
     """From points in the room (and far out, beyond FLOAT32_EXTENT), the

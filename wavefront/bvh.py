@@ -65,8 +65,9 @@ force's, exactly:
   tiny.  ``|big| >= sqrt(|P|)`` (the larger of two real roots whose product
   is P), and ``|P| >= e^2`` for an origin ``e`` off the sphere, so ``|big| >=
   e``: it is tiny only for rays starting within ``e`` of the surface (near a
-  tangent the near root can then land anywhere along the ray: measured up to
-  273 units from a ball of radius 0.2).  An anchored set's pad is at least
+  tangent the quotient ``P / big`` can then land anywhere along the ray,
+  measured up to 273 units from a ball of radius 0.2, which is why
+  ``anchored_roots`` caps the near root at ``|big|``).  An anchored set's pad is at least
   ROUNDING_PAD float32 epsilons of ``2 FLOAT32_EXTENT`` (3.9e-3, see
   ``_build_traversal_tables``): a ray starting within ``pad - T_MIN`` of a
   sphere starts inside its padded boxes and padded bounding sphere by more
