@@ -443,3 +443,33 @@ def test_cover_scene_float32_image_is_the_float64_image_and_a_wrong_power_is_rej
     monkeypatch.setattr(sphere_module, "anchored_roots", _wrong_power)
     wrong = estimate(scene, 12, 700, samples_per_pixel=16)
     assert rejected(wrong, f64)[0], "the z-test did not reject a wrong power of the origin"
+
+
+def test_anchored_sets_take_rays_of_another_type():
+    """Whitted's shadow rays in a forced float32 scene come with float64
+    directions: an anchored set tests them as rays of its own type (it moved a
+    sign bit between arrays of two types by viewing their bits, and crashed;
+    session 11's review), and an empty block of spheres keys nothing."""
+    rng = np.random.default_rng(11)
+    center = np.array([[0.0, 0.3, -0.4], [-1000.0, 0.25, 0.3], [0.0, 0.1, -0.2]])
+    spheres = SphereSet(center, np.array([1000.0, 0.2, 0.25]), np.zeros(3, np.int32), np.float32)
+    assert spheres.anchored
+    origin = rng.uniform(-1, 1, (3, 500)).astype(np.float32)
+    origin[1] = np.abs(origin[1]) + 0.5
+    direction = normalize(rng.normal(size=(3, 500)))  # float64
+    limit = np.full(500, 5.0)
+    own = direction.astype(np.float32)
+    np.testing.assert_array_equal(spheres.any_hit_block(0, 3, origin, direction, limit),
+                                  spheres.any_hit_block(0, 3, origin, own, limit.astype(np.float32)))
+    np.testing.assert_array_equal(spheres.key_block(0, 3, origin, direction), spheres.key_block(0, 3, origin, own))
+    assert 0.1 < spheres.any_hit_block(0, 3, origin, own, limit.astype(np.float32)).mean() < 0.9
+    assert spheres.key_block(1, 1, origin, own).shape == (0, 500)
+
+
+def test_whitted_in_forced_float32_with_huge_spheres_renders():
+    scene = load_scene(SCENES / "whitted.yaml").with_overrides(width=24, samples_per_pixel=1)
+    scene = scene.replace(render=dataclasses.replace(scene.render, precision="float32"))
+    from wavefront import render_scene
+
+    image = render_scene(scene, workers=1).image
+    assert np.isfinite(image).all() and image.mean() > 0.01

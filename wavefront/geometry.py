@@ -367,6 +367,11 @@ def anchored_roots(center, radius_squared, near_point, far_point, origin, direct
     ``(small_root, big_root, t_min)``, the roots in either order; a miss
     gives NaN roots.  ``t_min`` is ``max(T_MIN, RELATIVE_T_MIN max_i |o_i|)``.
     """
+    # rays of another type (Whitted's float64 light directions in a float32
+    # scene) in the anchors' own: the sign bit below is moved between arrays
+    # by viewing their bits, which needs one type (no copy where they have it)
+    origin = origin.astype(near_point.dtype, copy=False)
+    direction = direction.astype(near_point.dtype, copy=False)
     h, sqrt_disc = sphere_roots(center, radius_squared, origin, direction)
     # (o - near) (o - far) summed over the axes, in place (products commute
     # exactly: the same numbers as with a temporary per factor)

@@ -227,7 +227,7 @@ class SphereSet(ShapeKind):
         if self.shared_axes and stop - start > 1 and origin.dtype == direction.dtype == self.dtype:
             center = [center[i][:1] if i in self.shared_axes else center[i] for i in range(3)]
         n = origin.shape[1]
-        step = max(KEY_MIN_RAYS, KEY_BLOCK_BYTES // ((stop - start) * self.dtype.itemsize))
+        step = max(KEY_MIN_RAYS, KEY_BLOCK_BYTES // (max(1, stop - start) * self.dtype.itemsize))  # (an empty block too)
         if n <= step:
             return sphere_root_keys(center, radius_squared, o, d)
         step = -(-n // -(-n // step))  # chunks of equal size
