@@ -466,6 +466,27 @@ def test_the_polygon_bound_counts_lines_as_trimesh_splits_them(monkeypatch):
             assert bound(data, 10**6) == built, (data[:80], chunk)
 
 
+def test_an_off_comment_runs_to_the_next_lf_over_other_line_breaks(monkeypatch):
+    """trimesh's comment_strip removes a ``#`` to the next LF before it splits
+    lines, so lines a comment runs over at lone CRs are gone; split there
+    first, they were read as the counts, vertices and faces (zeros) and the
+    real faces after them counted nothing (0 of 599,400 triangles, of a file of
+    2000-gons)."""
+    import io
+
+    verts = [b"%d %d 0" % (x, y) for x in range(10) for y in range(10)]
+    face = b"4 0 1 11 10"  # trimesh's OFF reader fails on polygons above 4 sides
+    hidden = b"OFF #\r100 40 0" + b"\r0" * 140
+    cases = [b"\n".join([hidden, b"100 40 0"] + verts + [face] * 40) + b"\n",
+             b"\n".join([b"# made here", b"OFF", b"100 40 0"] + verts + [face + b" # \r3 0 1 2\r3 0 1 2"] * 40)]
+    for data in cases:
+        built = len(trimesh.load(io.BytesIO(data), file_type="off", process=False).faces)
+        assert built == 40 * 2
+        for chunk in (5, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+            assert mesh_files._off_triangle_bound(data, 10**6) == built, chunk
+
+
 def test_an_off_blank_line_longer_than_the_blanks_scanned_is_still_blank(monkeypatch):
     """trimesh drops an OFF's blank lines however long; the scan looked at the
     first 64 blanks only and took a longer blank line for a vertex or face

@@ -209,7 +209,15 @@ def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
 
 def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     """At least the triangles trimesh makes of an OFF's faces (an n-gon is
-    n - 2), after holding the header's counts to the limit."""
+    n - 2), after holding the header's counts to the limit.
+
+    Read as trimesh reads it: its ``comment_strip`` first removes each ``#``
+    up to the next LF (not to a lone CR or another str.splitlines break:
+    lines a comment runs over that way are gone before the lines are split;
+    read as lines, they were taken for the counts, vertices and faces, and
+    the real faces after them counted nothing)."""
+    if b"#" in data:
+        data = _OFF_COMMENT.sub(b"", data)  # a copy, only for a file with a comment; freed before trimesh parses
     at = data.find(b"OFF", 0, 65536)
     while at >= 0 and b"#" in data[data.rfind(b"\n", 0, at) + 1:at]:  # trimesh strips comments first
         at = data.find(b"OFF", at + 3, 65536)
@@ -232,6 +240,10 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     return _line_polygons(data, position, vertices, faces, blank_lines_count=False, count_first=True)
 
 
+# trimesh's comment_strip: a '#' to the next LF (only) is gone, the LF stays
+# (what it does to the text before the first comment is not repeated here:
+# see the note in _line_polygons' docstring).
+_OFF_COMMENT = re.compile(rb"#[^\n]*")
 _LINE_CHUNK = 1 << 22  # bytes of lines scanned at once: temporaries of a few times this, whatever the file's size
 _BLANK = np.zeros(256, dtype=bool)
 _BLANK[list(b" \t")] = True
