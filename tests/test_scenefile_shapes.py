@@ -510,6 +510,26 @@ def test_an_off_blank_line_longer_than_the_blanks_scanned_is_still_blank(monkeyp
     assert first.tolist() == [3, 7, 10, 16]
 
 
+@pytest.mark.parametrize("blank", ["\x1f", "\u00a0", "\u3000", "\u2000\u202f", " " * 65])
+def test_off_lines_blank_to_str_strip_and_deep_counts_are_read(monkeypatch, blank):
+    """A face line whose count follows more than 64 blanks counted nothing
+    (the count was read before them); a line of characters str.strip()
+    removes but the scan did not know (\\x1f, NBSP, U+3000) was taken for a
+    vertex or face line, shifting every later line."""
+    import io
+
+    lines = trimesh.exchange.off.export_off(trimesh.creation.icosphere(1)).split("\n")
+    lines[2:2] = [blank] * 3
+    lines[-10:] = [" " * 65 + line for line in lines[-10:]]
+    lines[-5:] = [line.replace(" ", blank) for line in lines[-5:]]  # words split by them too
+    data = "\n".join(lines).encode("utf-8")
+    built = len(trimesh.load(io.BytesIO(data), file_type="off", process=False).faces)
+    assert built == 80
+    for chunk in (5, 64, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._off_triangle_bound(data, 10**6) == built, chunk
+
+
 def test_the_polygon_bound_never_exceeds_what_trimesh_builds_on_valid_files():
     """Layouts whose counts the scan cannot read (a flag or a uv list before a
     PLY's indices; an OFF in fixed-width columns) count what they can or

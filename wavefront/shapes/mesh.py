@@ -218,6 +218,7 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     the real faces after them counted nothing)."""
     if b"#" in data:
         data = _OFF_COMMENT.sub(b"", data)  # a copy, only for a file with a comment; freed before trimesh parses
+    data = _split_as_str(data, blanks=True)
     at = data.find(b"OFF", 0, 65536)
     while at >= 0 and b"#" in data[data.rfind(b"\n", 0, at) + 1:at]:  # trimesh strips comments first
         at = data.find(b"OFF", at + 3, 65536)
@@ -246,13 +247,13 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
 _OFF_COMMENT = re.compile(rb"#[^\n]*")
 _LINE_CHUNK = 1 << 22  # bytes of lines scanned at once: temporaries of a few times this, whatever the file's size
 _BLANK = np.zeros(256, dtype=bool)
-_BLANK[list(b" \t")] = True
+_BLANK[list(b" \t\x1f")] = True  # what str.strip() and str.split() take for blanks in one byte (\x1f too)
 _EMPTY = np.zeros(256, dtype=bool)
 _EMPTY[list(b"\r\n#")] = True
-# A count after more blanks than this is not read (its line counts nothing
-# here; the file's size still bounds it): fixed-width columns (%10d) need
-# ten; each further blank costs a pass over a chunk's lines, stopped early
-# once no line has one.
+# Leading blanks skipped a byte at a time for every line of a chunk at once:
+# fixed-width columns (%10d) need ten; each further blank costs a pass over
+# a chunk's lines, stopped early once no line has one.  The lines with more
+# (rare) are then scanned alone (_first_other_than_blank).
 _LEADING_BLANKS = 64
 _COUNT_DIGITS = 12  # more than the tokens any line of a 512 MiB file holds
 
@@ -264,6 +265,26 @@ _COUNT_DIGITS = 12  # more than the tokens any line of a 512 MiB file holds
 _LINE_BREAK = np.zeros(256, dtype=bool)
 _LINE_BREAK[list(b"\n\r\v\f\x1c\x1d\x1e")] = True
 _NEXT_LINE_BREAK = re.compile(rb"\r(?!\n)|[\n\v\f\x1c-\x1e]")
+
+
+# Characters str.strip() and str.split() take for blanks that the byte scan
+# does not know: \x1f and, in UTF-8, NBSP, U+1680, U+2000-U+200A, U+202F,
+# U+205F, U+3000.  A line of them alone is blank to trimesh (an OFF drops it):
+# taken for content, each shifted every later line (a face read as a vertex).
+_UNICODE_BLANK = re.compile(rb"\xc2\xa0|\xe1\x9a\x80|\xe2\x80[\x80-\x8a\xaf]|\xe2\x81\x9f|\xe3\x80\x80")
+
+
+def _split_as_str(data: bytes, *, blanks: bool) -> bytes:
+    """``data`` with the characters str.strip() and str.split() see as
+    blanks (``blanks``) made plain spaces, so the byte scan splits its lines
+    and words as trimesh does; ``data`` itself (no copy) when it has none."""
+    if blanks and b"\x1f" in data:
+        data = data.replace(b"\x1f", b" ")
+    if data.isascii():
+        return data
+    if blanks:
+        data = _UNICODE_BLANK.sub(b" ", data)  # shorter lines: what a line can list is still held to its length
+    return data
 
 
 def _only_newlines(data: bytes, start: int) -> bool:
@@ -307,8 +328,7 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
     (a PLY face or an OFF face) after ``skip`` lines from byte ``start``:
     the sum of n - 2, with n held to what the line can hold (a count of 10^9
     on a short line gives what the line lists).  A line whose count cannot
-    be read here (after more than ``_LEADING_BLANKS`` blanks), and every line
-    when the list is not the line's first value (``count_first`` false: a
+    be read here (not digits after the blanks), and every line when the list is not the line's first value (``count_first`` false: a
     PLY with a flag or a uv list before its indices), count nothing: a guess
     from the line's length refused valid files, and such files are still
     bounded by their size (the memory estimate of a mesh file) and by the
@@ -348,13 +368,12 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
             if not step.any():
                 break
             lead += step
+        deep = np.flatnonzero((lead < ends) & _BLANK[a[np.minimum(lead, n - 1)]])
+        if deep.size:  # lines of more than _LEADING_BLANKS blanks (rare): found for those alone
+            lead[deep] = _first_other_than_blank(a, lead[deep], ends[deep])
+        # lead is now each line's first byte other than a blank (or its end)
         if not blank_lines_count:
-            first = lead  # each line's first byte other than a blank
-            deep = np.flatnonzero((lead < ends) & _BLANK[a[np.minimum(lead, n - 1)]])
-            if deep.size:  # lines of more than _LEADING_BLANKS blanks (rare): found for those alone
-                first = lead.copy()
-                first[deep] = _first_other_than_blank(a, lead[deep], ends[deep])
-            content = (first < ends) & ~_EMPTY[a[np.minimum(first, n - 1)]]
+            content = (lead < ends) & ~_EMPTY[a[np.minimum(lead, n - 1)]]
             starts, ends, lead = starts[content], ends[content], lead[content]
         index = np.arange(seen, seen + starts.size)
         seen += starts.size
