@@ -466,6 +466,36 @@ def test_the_polygon_bound_counts_lines_as_trimesh_splits_them(monkeypatch):
             assert bound(data, 10**6) == built, (data[:80], chunk)
 
 
+@pytest.mark.parametrize("ext", ["off", "ply"])
+@pytest.mark.parametrize("encoded", [b"\xe2\x80\xa8", b"\xe2\x80\xa9", b"\xc2\x85", b"\x85", b"\r\xe2\x80\xa8"])
+def test_the_polygon_bound_counts_unicode_line_breaks(monkeypatch, ext, encoded):
+    """str.splitlines, with which trimesh splits an OFF and a PLY's ASCII
+    body, also breaks at U+2028, U+2029 and NEL (a Latin-1 0x85 byte is NEL
+    once the file is read as UTF-8); the scan took such a file for one line
+    and counted 0 triangles."""
+    import io
+
+    if ext == "ply" and encoded in (b"\x85", b"\r\xe2\x80\xa8"):
+        pytest.skip("trimesh refuses it (a PLY body not UTF-8; a blank row between every two)")
+    rng = np.random.default_rng(11)
+    vertices = [b"%f %f %f" % tuple(v) for v in rng.random((30, 3))]
+    faces = [b"%d %s" % (len(p), b" ".join(b"%d" % i for i in p))
+             for p in (rng.integers(0, 30, rng.integers(3, 5)) for _ in range(40))]
+    if ext == "off":
+        data = b"OFF\n30 40 0" + b"".join(encoded + line for line in vertices + faces) + encoded
+    else:
+        data = (b"ply\nformat ascii 1.0\nelement vertex 30\nproperty float x\nproperty float y\nproperty float z\n"
+                b"element face 40\nproperty list uchar int vertex_indices\nend_header\n"
+                + b"".join(line + encoded for line in vertices + faces))
+    built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(mesh_files._text_as_utf8(data, ext)), file_type=ext,
+                                                          process=False).geometry.values())
+    bound = mesh_files._ply_triangle_bound if ext == "ply" else mesh_files._off_triangle_bound
+    assert built > 40
+    for chunk in (5, 64, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert bound(data, 10**6) == built, chunk
+
+
 def test_an_off_comment_runs_to_the_next_lf_over_other_line_breaks(monkeypatch):
     """trimesh's comment_strip removes a ``#`` to the next LF before it splits
     lines, so lines a comment runs over at lone CRs are gone; split there

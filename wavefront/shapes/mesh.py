@@ -204,6 +204,8 @@ def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
             position += count * size
         return 0
     skip = sum(e[1] for e in elements[:face])
+    if not data.isascii():  # trimesh splits the body's text at U+2028, U+2029 and NEL too
+        data = data[:body] + _split_as_str(data[body:], blanks=False)
     return _line_polygons(data, body, skip, elements[face][1], blank_lines_count=True, count_first=indices == 0)
 
 
@@ -216,6 +218,7 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     lines a comment runs over that way are gone before the lines are split;
     read as lines, they were taken for the counts, vertices and faces, and
     the real faces after them counted nothing)."""
+    data = _text_as_utf8(data, "off")  # as trimesh gets it: a Latin-1 0x85 byte is NEL, a line break
     if b"#" in data:
         data = _OFF_COMMENT.sub(b"", data)  # a copy, only for a file with a comment; freed before trimesh parses
     data = _split_as_str(data, blanks=True)
@@ -274,14 +277,23 @@ _NEXT_LINE_BREAK = re.compile(rb"\r(?!\n)|[\n\v\f\x1c-\x1e]")
 _UNICODE_BLANK = re.compile(rb"\xc2\xa0|\xe1\x9a\x80|\xe2\x80[\x80-\x8a\xaf]|\xe2\x81\x9f|\xe3\x80\x80")
 
 
+# Line breaks of str.splitlines (with which trimesh splits an OFF and a PLY's
+# ASCII body) outside ASCII, in UTF-8: NEL, U+2028, U+2029.  Unseen, a file
+# whose lines end so was one line: 0 triangles counted.
+_UNICODE_BREAK = re.compile(rb"\xc2\x85|\xe2\x80[\xa8\xa9]")
+
+
 def _split_as_str(data: bytes, *, blanks: bool) -> bytes:
-    """``data`` with the characters str.strip() and str.split() see as
-    blanks (``blanks``) made plain spaces, so the byte scan splits its lines
-    and words as trimesh does; ``data`` itself (no copy) when it has none."""
+    """``data`` with str.splitlines' line breaks outside ASCII made one the
+    scan knows, and the characters str.strip() and str.split() see as blanks
+    (``blanks``) made plain spaces, so the byte scan splits its lines and
+    words as trimesh does; ``data`` itself (no copy) when it has none."""
     if blanks and b"\x1f" in data:
         data = data.replace(b"\x1f", b" ")
     if data.isascii():
         return data
+    # a break of one byte the scan knows; not LF, which would join a CR before it into one break
+    data = _UNICODE_BREAK.sub(b"\v", data)
     if blanks:
         data = _UNICODE_BLANK.sub(b" ", data)  # shorter lines: what a line can list is still held to its length
     return data
