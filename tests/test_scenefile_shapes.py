@@ -144,6 +144,10 @@ BAD_MESHES = [
     ("zero_signed.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\r\nf 1 2 3\r\nf 1 2\t-00\r\n", "line 5: a face has index 0"),
     # a face continued onto the next line (trimesh joins "\\\n"): the zero is on the file's line 5
     ("zero_continued.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n0\n", "line 5: a face has index 0"),
+    # the last line ends in a backslash: trimesh strips the text, ends it with LF and joins them (loaded silently)
+    ("zero_last_continued.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 2 3 4\nf 2 3 0\\", "line 6: a face has index 0"),
+    ("zero_last_continued_cr.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 2 3 4\nf 2 3 0\\\r\r\n",
+     "line 6: a face has index 0"),
     ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "a face has index 9, out of range (it has 3 vertices)"),
     ("back.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "a face has index -4, out of range"),
     ("huge.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n",
@@ -201,7 +205,9 @@ def test_a_continued_face_line_is_scanned_as_trimesh_joins_it(monkeypatch):
              (b"f 1 \\\n\\\n0 2\n", 3), (b"# a note \\\nf 0 1 2\nf 1 2 3\n", None),
              (b"f 1 2 3\r\nf 2 \\\r\n 0\r\n", 3), (b"v 0 0 0\nf 1 \\\n2 3\nf 0 1 2\n", 4),
              (b"f \\\n-0 1 2", 2), (b"v 0 0 \\\n0\nf 1 2 \\\n\\\n3\nf 2 3 4\nf 1 2\\\n \\\n0", 9),
-             (b"f 1 2 3 \\\\\n0 1 2\n", None)]  # "\\\\\n": the second backslash continues; "0 1 2" joins it
+             (b"f 1 2 3 \\\\\n0 1 2\n", None),  # "\\\\\n": the second backslash continues; "0 1 2" joins it
+             # a backslash last before trailing blanks: trimesh strips the text and ends it with the LF it joins
+             (b"f 1 2 0\\", 1), (b"v 0 0 0\nf 1 2 0\\\r\x1f \t\n", 2), (b"f 1 2 3\\  \n", None), (b"f 1 2 \\\n0\\", 2)]
     for data, line in cases:
         for chunk in (1, 3, 64, 1 << 22):
             monkeypatch.setattr(mesh_files, "_ZERO_INDEX_CHUNK", chunk)

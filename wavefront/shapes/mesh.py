@@ -571,7 +571,12 @@ def _obj_zero_index_line(data: bytes) -> int | None:
     A line ending in a backslash goes on on the next: trimesh turns CRLF
     into LF and then takes out every backslash-newline before it reads a
     line, so a file holding one is scanned so joined (a copy, only then),
-    and the line given is still the file's own."""
+    and the line given is still the file's own.  It strips the text first
+    and then ends it with an LF, so a backslash last before trailing blanks
+    continues into that LF: the last line ends there, as if unbroken."""
+    end = _last_other_than_stripped(data)
+    if end >= 0 and data[end] == ord("\\"):
+        data = data[:end]  # a copy, only for such a file (the line numbers are unchanged: a prefix)
     if b"\\\n" not in data and b"\\\r\n" not in data:
         offset = _obj_zero_index_offset(data)
         return None if offset is None else data.count(b"\n", 0, offset) + 1
@@ -592,6 +597,26 @@ def _obj_zero_index_line(data: bytes) -> int | None:
         else:
             low = middle + 1
     return joined.count(b"\n", 0, offset) + low + 1
+
+
+# Bytes str.strip() removes (trimesh strips an OBJ's text before it reads it).
+_STRIPPED = np.zeros(256, dtype=bool)
+_STRIPPED[list(b" \t\n\r\v\f\x1c\x1d\x1e\x1f")] = True
+
+
+def _last_other_than_stripped(data: bytes) -> int:
+    """The position of the last byte of ``data`` str.strip() keeps, else -1:
+    from the end in growing blocks (no copy of the file, whatever its tail)."""
+    a = np.frombuffer(data, dtype=np.uint8)
+    size = 4096
+    while True:
+        tail = a[-size:]
+        kept = np.flatnonzero(~_STRIPPED[tail])
+        if kept.size:
+            return a.size - tail.size + int(kept[-1])
+        if tail.size == a.size:
+            return -1
+        size *= 8
 
 
 def _obj_zero_index_offset(data: bytes) -> int | None:
