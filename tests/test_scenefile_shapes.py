@@ -546,6 +546,24 @@ def test_an_off_blank_line_longer_than_the_blanks_scanned_is_still_blank(monkeyp
     assert first.tolist() == [3, 7, 10, 16]
 
 
+def test_an_off_read_twice_before_its_first_comment_is_counted_as_trimesh_reads_it(monkeypatch):
+    """trimesh's comment_strip repeats the lines before the first comment but
+    the first, so trimesh reads them twice (found by fuzzing: 0 counted of 2
+    built, the faces shifted onto other lines)."""
+    import io
+
+    cases = [b"OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2 # c\n4 0 1 2 3\n",
+             b"OFF 4 3 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n4 0 1 2 3\n3 0 1 2 # c\n3 0 1 2\n",
+             b"OFF\x1d4 8\r\n0.70 0.68 0.54\r\n0.22 0.98 0.80\x1c\r# c\x1d# c\r0.52 0.22 0.65\x0b0.39 0.58 0.32\r"
+             b"6 2 1 1 0 2 0\x0c# c\x1c 3 2 1 3\x0c 7 1 0 0 1 3 1 0\r6 2 0 1 3 1 3\x1e   3 3 2 3\x0c 3 3 2 0\r"
+             b"4 2 1 2 3\n 4 0 3 2 3\x0c"]
+    for data in cases:
+        built = len(trimesh.load(io.BytesIO(data), file_type="off", process=False).faces)
+        for chunk in (5, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+            assert mesh_files._off_triangle_bound(data, 10**6) == built, (data[:40], chunk)
+
+
 @pytest.mark.parametrize("blank", ["\x1f", "\u00a0", "\u3000", "\u2000\u202f", " " * 65])
 def test_off_lines_blank_to_str_strip_and_deep_counts_are_read(monkeypatch, blank):
     """A face line whose count follows more than 64 blanks counted nothing

@@ -217,10 +217,17 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     up to the next LF (not to a lone CR or another str.splitlines break:
     lines a comment runs over that way are gone before the lines are split;
     read as lines, they were taken for the counts, vertices and faces, and
-    the real faces after them counted nothing)."""
+    the real faces after them counted nothing), and repeats the lines before
+    the first comment but the first."""
     data = _text_as_utf8(data, "off")  # as trimesh gets it: a Latin-1 0x85 byte is NEL, a line break
-    if b"#" in data:
-        data = _OFF_COMMENT.sub(b"", data)  # a copy, only for a file with a comment; freed before trimesh parses
+    if b"#" in data:  # a copy, only for a file with a comment; freed before trimesh parses
+        first = data.find(b"#")
+        head = data[:first]
+        # comment_strip also repeats the text before the first comment from its
+        # second line on (its first chunk is both its lead and a comment's
+        # remainder): those lines are read twice, shifting the faces after them.
+        repeated = head[head.find(b"\n") + 1:] if b"\n" in head else b""
+        data = head + (b"\n" + repeated if repeated else b"") + _OFF_COMMENT.sub(b"", data[first:])
     data = _split_as_str(data, blanks=True)
     at = data.find(b"OFF", 0, 65536)
     while at >= 0 and b"#" in data[data.rfind(b"\n", 0, at) + 1:at]:  # trimesh strips comments first
@@ -244,9 +251,7 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     return _line_polygons(data, position, vertices, faces, blank_lines_count=False, count_first=True)
 
 
-# trimesh's comment_strip: a '#' to the next LF (only) is gone, the LF stays
-# (what it does to the text before the first comment is not repeated here:
-# see the note in _line_polygons' docstring).
+# trimesh's comment_strip: a '#' to the next LF (only) is gone, the LF stays.
 _OFF_COMMENT = re.compile(rb"#[^\n]*")
 _LINE_CHUNK = 1 << 22  # bytes of lines scanned at once: temporaries of a few times this, whatever the file's size
 _BLANK = np.zeros(256, dtype=bool)
