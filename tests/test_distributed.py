@@ -107,6 +107,25 @@ def test_a_local_cluster_refusal_says_what_this_process_holds(tmp_path):
     assert 20 <= held <= 128 and "MiB in all, more than the memory budget of 128 MiB" in r.stderr, r.stderr
 
 
+def test_a_local_cluster_refusals_advice_works_when_followed(tmp_path):
+    """local:3 under 200M advised "at most local:1", and local:1 under 200M was
+    then refused: the first check measured this process before Dask was
+    imported (37-39 MiB), connect's after (63-64 MiB).  Dask's modules are
+    counted before they are imported too."""
+    advised = 0
+    for memory in ("200M", "240M"):
+        r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.npy", "--width", 16, "--height", 16,
+                "--spp", 1, "--scheduler", "local:3", "--memory", memory, "-q")
+        assert r.returncode == 2 and ("does not fit" in r.stderr or "at most local:" in r.stderr), r.stderr
+        if "at most local:" in r.stderr:
+            advised += 1
+            fits = int(r.stderr.split("at most local:")[1].split()[0])
+            r = run("render", SCENES / "three_spheres.yaml", "-o", tmp_path / "x.npy", "--width", 16, "--height", 16,
+                    "--spp", 1, "--scheduler", f"local:{fits}", "--memory", memory, "-q")
+            assert r.returncode == 0, (memory, r.stderr)
+    assert advised  # the advice was given and followed at least once
+
+
 # A LocalCluster that records that it was started, and does not start (the
 # refusal must come before it: a cluster is ~140 MiB and seconds of start-up)
 NO_CLUSTER = ("import sys, dask.distributed\n"

@@ -144,6 +144,10 @@ BAD_MESHES = [
     ("zero_signed.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\r\nf 1 2 3\r\nf 1 2\t-00\r\n", "line 5: a face has index 0"),
     # a face continued onto the next line (trimesh joins "\\\n"): the zero is on the file's line 5
     ("zero_continued.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n0\n", "line 5: a face has index 0"),
+    # the last line ends in a backslash: trimesh strips the text, ends it with LF and joins them (loaded silently)
+    ("zero_last_continued.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 2 3 4\nf 2 3 0\\", "line 6: a face has index 0"),
+    ("zero_last_continued_cr.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 2 3 4\nf 2 3 0\\\r\r\n",
+     "line 6: a face has index 0"),
     ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "a face has index 9, out of range (it has 3 vertices)"),
     ("back.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "a face has index -4, out of range"),
     ("huge.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n",
@@ -201,7 +205,9 @@ def test_a_continued_face_line_is_scanned_as_trimesh_joins_it(monkeypatch):
              (b"f 1 \\\n\\\n0 2\n", 3), (b"# a note \\\nf 0 1 2\nf 1 2 3\n", None),
              (b"f 1 2 3\r\nf 2 \\\r\n 0\r\n", 3), (b"v 0 0 0\nf 1 \\\n2 3\nf 0 1 2\n", 4),
              (b"f \\\n-0 1 2", 2), (b"v 0 0 \\\n0\nf 1 2 \\\n\\\n3\nf 2 3 4\nf 1 2\\\n \\\n0", 9),
-             (b"f 1 2 3 \\\\\n0 1 2\n", None)]  # "\\\\\n": the second backslash continues; "0 1 2" joins it
+             (b"f 1 2 3 \\\\\n0 1 2\n", None),  # "\\\\\n": the second backslash continues; "0 1 2" joins it
+             # a backslash last before trailing blanks: trimesh strips the text and ends it with the LF it joins
+             (b"f 1 2 0\\", 1), (b"v 0 0 0\nf 1 2 0\\\r\x1f \t\n", 2), (b"f 1 2 3\\  \n", None), (b"f 1 2 \\\n0\\", 2)]
     for data, line in cases:
         for chunk in (1, 3, 64, 1 << 22):
             monkeypatch.setattr(mesh_files, "_ZERO_INDEX_CHUNK", chunk)
@@ -466,6 +472,57 @@ def test_the_polygon_bound_counts_lines_as_trimesh_splits_them(monkeypatch):
             assert bound(data, 10**6) == built, (data[:80], chunk)
 
 
+@pytest.mark.parametrize("ext", ["off", "ply"])
+@pytest.mark.parametrize("encoded", [b"\xe2\x80\xa8", b"\xe2\x80\xa9", b"\xc2\x85", b"\x85", b"\r\xe2\x80\xa8"])
+def test_the_polygon_bound_counts_unicode_line_breaks(monkeypatch, ext, encoded):
+    """str.splitlines, with which trimesh splits an OFF and a PLY's ASCII
+    body, also breaks at U+2028, U+2029 and NEL (a Latin-1 0x85 byte is NEL
+    once the file is read as UTF-8); the scan took such a file for one line
+    and counted 0 triangles."""
+    import io
+
+    if ext == "ply" and encoded in (b"\x85", b"\r\xe2\x80\xa8"):
+        pytest.skip("trimesh refuses it (a PLY body not UTF-8; a blank row between every two)")
+    rng = np.random.default_rng(11)
+    vertices = [b"%f %f %f" % tuple(v) for v in rng.random((30, 3))]
+    faces = [b"%d %s" % (len(p), b" ".join(b"%d" % i for i in p))
+             for p in (rng.integers(0, 30, rng.integers(3, 5)) for _ in range(40))]
+    if ext == "off":
+        data = b"OFF\n30 40 0" + b"".join(encoded + line for line in vertices + faces) + encoded
+    else:
+        data = (b"ply\nformat ascii 1.0\nelement vertex 30\nproperty float x\nproperty float y\nproperty float z\n"
+                b"element face 40\nproperty list uchar int vertex_indices\nend_header\n"
+                + b"".join(line + encoded for line in vertices + faces))
+    built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(mesh_files._text_as_utf8(data, ext)), file_type=ext,
+                                                          process=False).geometry.values())
+    bound = mesh_files._ply_triangle_bound if ext == "ply" else mesh_files._off_triangle_bound
+    assert built > 40
+    for chunk in (5, 64, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert bound(data, 10**6) == built, chunk
+
+
+def test_an_off_comment_runs_to_the_next_lf_over_other_line_breaks(monkeypatch):
+    """trimesh's comment_strip removes a ``#`` to the next LF before it splits
+    lines, so lines a comment runs over at lone CRs are gone; split there
+    first, they were read as the counts, vertices and faces (zeros) and the
+    real faces after them counted nothing (0 of 599,400 triangles, of a file of
+    2000-gons)."""
+    import io
+
+    verts = [b"%d %d 0" % (x, y) for x in range(10) for y in range(10)]
+    face = b"4 0 1 11 10"  # trimesh's OFF reader fails on polygons above 4 sides
+    hidden = b"OFF #\r100 40 0" + b"\r0" * 140
+    cases = [b"\n".join([hidden, b"100 40 0"] + verts + [face] * 40) + b"\n",
+             b"\n".join([b"# made here", b"OFF", b"100 40 0"] + verts + [face + b" # \r3 0 1 2\r3 0 1 2"] * 40)]
+    for data in cases:
+        built = len(trimesh.load(io.BytesIO(data), file_type="off", process=False).faces)
+        assert built == 40 * 2
+        for chunk in (5, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+            assert mesh_files._off_triangle_bound(data, 10**6) == built, chunk
+
+
 def test_an_off_blank_line_longer_than_the_blanks_scanned_is_still_blank(monkeypatch):
     """trimesh drops an OFF's blank lines however long; the scan looked at the
     first 64 blanks only and took a longer blank line for a vertex or face
@@ -487,6 +544,44 @@ def test_an_off_blank_line_longer_than_the_blanks_scanned_is_still_blank(monkeyp
     a = np.frombuffer(b"1  \n   \n  x\n    ", dtype=np.uint8)
     first = mesh_files._first_other_than_blank(a, np.array([1, 4, 8, 12]), np.array([3, 7, 11, 16]))
     assert first.tolist() == [3, 7, 10, 16]
+
+
+def test_an_off_read_twice_before_its_first_comment_is_counted_as_trimesh_reads_it(monkeypatch):
+    """trimesh's comment_strip repeats the lines before the first comment but
+    the first, so trimesh reads them twice (found by fuzzing: 0 counted of 2
+    built, the faces shifted onto other lines)."""
+    import io
+
+    cases = [b"OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2 # c\n4 0 1 2 3\n",
+             b"OFF 4 3 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n4 0 1 2 3\n3 0 1 2 # c\n3 0 1 2\n",
+             b"OFF\x1d4 8\r\n0.70 0.68 0.54\r\n0.22 0.98 0.80\x1c\r# c\x1d# c\r0.52 0.22 0.65\x0b0.39 0.58 0.32\r"
+             b"6 2 1 1 0 2 0\x0c# c\x1c 3 2 1 3\x0c 7 1 0 0 1 3 1 0\r6 2 0 1 3 1 3\x1e   3 3 2 3\x0c 3 3 2 0\r"
+             b"4 2 1 2 3\n 4 0 3 2 3\x0c"]
+    for data in cases:
+        built = len(trimesh.load(io.BytesIO(data), file_type="off", process=False).faces)
+        for chunk in (5, 64, 1 << 22):
+            monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+            assert mesh_files._off_triangle_bound(data, 10**6) == built, (data[:40], chunk)
+
+
+@pytest.mark.parametrize("blank", ["\x1f", "\u00a0", "\u3000", "\u2000\u202f", " " * 65])
+def test_off_lines_blank_to_str_strip_and_deep_counts_are_read(monkeypatch, blank):
+    """A face line whose count follows more than 64 blanks counted nothing
+    (the count was read before them); a line of characters str.strip()
+    removes but the scan did not know (\\x1f, NBSP, U+3000) was taken for a
+    vertex or face line, shifting every later line."""
+    import io
+
+    lines = trimesh.exchange.off.export_off(trimesh.creation.icosphere(1)).split("\n")
+    lines[2:2] = [blank] * 3
+    lines[-10:] = [" " * 65 + line for line in lines[-10:]]
+    lines[-5:] = [line.replace(" ", blank) for line in lines[-5:]]  # words split by them too
+    data = "\n".join(lines).encode("utf-8")
+    built = len(trimesh.load(io.BytesIO(data), file_type="off", process=False).faces)
+    assert built == 80
+    for chunk in (5, 64, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._off_triangle_bound(data, 10**6) == built, chunk
 
 
 def test_the_polygon_bound_never_exceeds_what_trimesh_builds_on_valid_files():

@@ -17,6 +17,8 @@ would pay for them).
 
 from __future__ import annotations
 
+import sys
+
 from .memory import MemoryBudgetError, MiB, current_rss, release_free_memory
 from .render import (FILM_BYTES_PER_PIXEL, POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute,
                      plan_local_workers, tune_allocator)
@@ -74,7 +76,8 @@ def local_worker_count(scheduler: str, memory: int | None = None) -> int:
 
     With ``memory``, a :class:`SchedulerError` unless N workers at
     ``LOCAL_WORKER_BYTES`` each and the cluster's ``LOCAL_CLUSTER_BYTES`` fit
-    beside what this process holds: checked before the cluster starts, since
+    beside what this process holds (with Dask's modules, ``DASK_CLIENT_BYTES``,
+    when they are not imported yet): checked before the cluster starts, since
     its processes are in the budget (``local:99999999999999999999`` grew to
     14 GB building Dask's table of workers)."""
     if not scheduler.startswith("local:"):
@@ -86,14 +89,20 @@ def local_worker_count(scheduler: str, memory: int | None = None) -> int:
     except ValueError:
         raise SchedulerError(f"{scheduler}: expected local:N with N >= 1 workers") from None
     if memory is not None:
-        held = current_rss()
+        # Checked once before Dask is imported (the CLI, so that a cluster that
+        # cannot fit is refused at once) and again in connect, after: its
+        # modules counted in both, or the first check's "at most local:N"
+        # (37-39 MiB held) was refused by the second (63-64 MiB).
+        importing = 0 if "dask.distributed" in sys.modules else DASK_CLIENT_BYTES
+        held = current_rss() + importing
         need = n * LOCAL_WORKER_BYTES + LOCAL_CLUSTER_BYTES
         if held + need > memory:
             fits = max(0, (memory - held - LOCAL_CLUSTER_BYTES) // LOCAL_WORKER_BYTES)
             raise SchedulerError(
                 f"{scheduler}: {n} local worker{'s' if n > 1 else ''} need{'' if n > 1 else 's'} at least "
                 f"{LOCAL_WORKER_BYTES // MiB} MiB{' each' if n > 1 else ''} and the cluster "
-                f"{LOCAL_CLUSTER_BYTES // MiB} MiB beside the {held / MiB:,.0f} MiB this process holds: "
+                f"{LOCAL_CLUSTER_BYTES // MiB} MiB beside the {held / MiB:,.0f} MiB this process holds"
+                f"{' with Dask imported' if importing else ''}: "
                 f"{(held + need) / MiB:,.0f} MiB in all, more than the memory budget of {memory // MiB:,} MiB "
                 "(--memory); " + (f"at most local:{fits}" if fits else "a local cluster does not fit in it"))
     return n

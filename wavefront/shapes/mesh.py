@@ -204,12 +204,31 @@ def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
             position += count * size
         return 0
     skip = sum(e[1] for e in elements[:face])
+    if not data.isascii():  # trimesh splits the body's text at U+2028, U+2029 and NEL too
+        data = data[:body] + _split_as_str(data[body:], blanks=False)
     return _line_polygons(data, body, skip, elements[face][1], blank_lines_count=True, count_first=indices == 0)
 
 
 def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     """At least the triangles trimesh makes of an OFF's faces (an n-gon is
-    n - 2), after holding the header's counts to the limit."""
+    n - 2), after holding the header's counts to the limit.
+
+    Read as trimesh reads it: its ``comment_strip`` first removes each ``#``
+    up to the next LF (not to a lone CR or another str.splitlines break:
+    lines a comment runs over that way are gone before the lines are split;
+    read as lines, they were taken for the counts, vertices and faces, and
+    the real faces after them counted nothing), and repeats the lines before
+    the first comment but the first."""
+    data = _text_as_utf8(data, "off")  # as trimesh gets it: a Latin-1 0x85 byte is NEL, a line break
+    if b"#" in data:  # a copy, only for a file with a comment; freed before trimesh parses
+        first = data.find(b"#")
+        head = data[:first]
+        # comment_strip also repeats the text before the first comment from its
+        # second line on (its first chunk is both its lead and a comment's
+        # remainder): those lines are read twice, shifting the faces after them.
+        repeated = head[head.find(b"\n") + 1:] if b"\n" in head else b""
+        data = head + (b"\n" + repeated if repeated else b"") + _OFF_COMMENT.sub(b"", data[first:])
+    data = _split_as_str(data, blanks=True)
     at = data.find(b"OFF", 0, 65536)
     while at >= 0 and b"#" in data[data.rfind(b"\n", 0, at) + 1:at]:  # trimesh strips comments first
         at = data.find(b"OFF", at + 3, 65536)
@@ -232,15 +251,17 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
     return _line_polygons(data, position, vertices, faces, blank_lines_count=False, count_first=True)
 
 
+# trimesh's comment_strip: a '#' to the next LF (only) is gone, the LF stays.
+_OFF_COMMENT = re.compile(rb"#[^\n]*")
 _LINE_CHUNK = 1 << 22  # bytes of lines scanned at once: temporaries of a few times this, whatever the file's size
 _BLANK = np.zeros(256, dtype=bool)
-_BLANK[list(b" \t")] = True
+_BLANK[list(b" \t\x1f")] = True  # what str.strip() and str.split() take for blanks in one byte (\x1f too)
 _EMPTY = np.zeros(256, dtype=bool)
 _EMPTY[list(b"\r\n#")] = True
-# A count after more blanks than this is not read (its line counts nothing
-# here; the file's size still bounds it): fixed-width columns (%10d) need
-# ten; each further blank costs a pass over a chunk's lines, stopped early
-# once no line has one.
+# Leading blanks skipped a byte at a time for every line of a chunk at once:
+# fixed-width columns (%10d) need ten; each further blank costs a pass over
+# a chunk's lines, stopped early once no line has one.  The lines with more
+# (rare) are then scanned alone (_first_other_than_blank).
 _LEADING_BLANKS = 64
 _COUNT_DIGITS = 12  # more than the tokens any line of a 512 MiB file holds
 
@@ -252,6 +273,35 @@ _COUNT_DIGITS = 12  # more than the tokens any line of a 512 MiB file holds
 _LINE_BREAK = np.zeros(256, dtype=bool)
 _LINE_BREAK[list(b"\n\r\v\f\x1c\x1d\x1e")] = True
 _NEXT_LINE_BREAK = re.compile(rb"\r(?!\n)|[\n\v\f\x1c-\x1e]")
+
+
+# Characters str.strip() and str.split() take for blanks that the byte scan
+# does not know: \x1f and, in UTF-8, NBSP, U+1680, U+2000-U+200A, U+202F,
+# U+205F, U+3000.  A line of them alone is blank to trimesh (an OFF drops it):
+# taken for content, each shifted every later line (a face read as a vertex).
+_UNICODE_BLANK = re.compile(rb"\xc2\xa0|\xe1\x9a\x80|\xe2\x80[\x80-\x8a\xaf]|\xe2\x81\x9f|\xe3\x80\x80")
+
+
+# Line breaks of str.splitlines (with which trimesh splits an OFF and a PLY's
+# ASCII body) outside ASCII, in UTF-8: NEL, U+2028, U+2029.  Unseen, a file
+# whose lines end so was one line: 0 triangles counted.
+_UNICODE_BREAK = re.compile(rb"\xc2\x85|\xe2\x80[\xa8\xa9]")
+
+
+def _split_as_str(data: bytes, *, blanks: bool) -> bytes:
+    """``data`` with str.splitlines' line breaks outside ASCII made one the
+    scan knows, and the characters str.strip() and str.split() see as blanks
+    (``blanks``) made plain spaces, so the byte scan splits its lines and
+    words as trimesh does; ``data`` itself (no copy) when it has none."""
+    if blanks and b"\x1f" in data:
+        data = data.replace(b"\x1f", b" ")
+    if data.isascii():
+        return data
+    # a break of one byte the scan knows; not LF, which would join a CR before it into one break
+    data = _UNICODE_BREAK.sub(b"\v", data)
+    if blanks:
+        data = _UNICODE_BLANK.sub(b" ", data)  # shorter lines: what a line can list is still held to its length
+    return data
 
 
 def _only_newlines(data: bytes, start: int) -> bool:
@@ -295,8 +345,7 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
     (a PLY face or an OFF face) after ``skip`` lines from byte ``start``:
     the sum of n - 2, with n held to what the line can hold (a count of 10^9
     on a short line gives what the line lists).  A line whose count cannot
-    be read here (after more than ``_LEADING_BLANKS`` blanks), and every line
-    when the list is not the line's first value (``count_first`` false: a
+    be read here (not digits after the blanks), and every line when the list is not the line's first value (``count_first`` false: a
     PLY with a flag or a uv list before its indices), count nothing: a guess
     from the line's length refused valid files, and such files are still
     bounded by their size (the memory estimate of a mesh file) and by the
@@ -336,13 +385,12 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
             if not step.any():
                 break
             lead += step
+        deep = np.flatnonzero((lead < ends) & _BLANK[a[np.minimum(lead, n - 1)]])
+        if deep.size:  # lines of more than _LEADING_BLANKS blanks (rare): found for those alone
+            lead[deep] = _first_other_than_blank(a, lead[deep], ends[deep])
+        # lead is now each line's first byte other than a blank (or its end)
         if not blank_lines_count:
-            first = lead  # each line's first byte other than a blank
-            deep = np.flatnonzero((lead < ends) & _BLANK[a[np.minimum(lead, n - 1)]])
-            if deep.size:  # lines of more than _LEADING_BLANKS blanks (rare): found for those alone
-                first = lead.copy()
-                first[deep] = _first_other_than_blank(a, lead[deep], ends[deep])
-            content = (first < ends) & ~_EMPTY[a[np.minimum(first, n - 1)]]
+            content = (lead < ends) & ~_EMPTY[a[np.minimum(lead, n - 1)]]
             starts, ends, lead = starts[content], ends[content], lead[content]
         index = np.arange(seen, seen + starts.size)
         seen += starts.size
@@ -528,7 +576,12 @@ def _obj_zero_index_line(data: bytes) -> int | None:
     A line ending in a backslash goes on on the next: trimesh turns CRLF
     into LF and then takes out every backslash-newline before it reads a
     line, so a file holding one is scanned so joined (a copy, only then),
-    and the line given is still the file's own."""
+    and the line given is still the file's own.  It strips the text first
+    and then ends it with an LF, so a backslash last before trailing blanks
+    continues into that LF: the last line ends there, as if unbroken."""
+    end = _last_other_than_stripped(data)
+    if end >= 0 and data[end] == ord("\\"):
+        data = data[:end]  # a copy, only for such a file (the line numbers are unchanged: a prefix)
     if b"\\\n" not in data and b"\\\r\n" not in data:
         offset = _obj_zero_index_offset(data)
         return None if offset is None else data.count(b"\n", 0, offset) + 1
@@ -549,6 +602,26 @@ def _obj_zero_index_line(data: bytes) -> int | None:
         else:
             low = middle + 1
     return joined.count(b"\n", 0, offset) + low + 1
+
+
+# Bytes str.strip() removes (trimesh strips an OBJ's text before it reads it).
+_STRIPPED = np.zeros(256, dtype=bool)
+_STRIPPED[list(b" \t\n\r\v\f\x1c\x1d\x1e\x1f")] = True
+
+
+def _last_other_than_stripped(data: bytes) -> int:
+    """The position of the last byte of ``data`` str.strip() keeps, else -1:
+    from the end in growing blocks (no copy of the file, whatever its tail)."""
+    a = np.frombuffer(data, dtype=np.uint8)
+    size = 4096
+    while True:
+        tail = a[-size:]
+        kept = np.flatnonzero(~_STRIPPED[tail])
+        if kept.size:
+            return a.size - tail.size + int(kept[-1])
+        if tail.size == a.size:
+            return -1
+        size *= 8
 
 
 def _obj_zero_index_offset(data: bytes) -> int | None:
