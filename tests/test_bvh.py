@@ -566,8 +566,9 @@ def rays_in_an_anchored_scene(rng, prims, n, extent):
        st.booleans(), st.sampled_from(["inf", "finite", "nan"]))
 def test_bvh_agrees_on_anchored_float32_spheres(m, seed, ground_radius, huge_in_tree, limits):
     """Float32 scenes with huge spheres run anchored (geometry.FLOAT32_MAX_REACH):
-    every sphere's exact test is anchored_roots, with a relative t_min for rays
-    from beyond FLOAT32_EXTENT.  The BVH must still give brute force's hits and
+    the exact test of every sphere reaching past FLOAT32_EXTENT is
+    anchored_roots, with a relative t_min for rays from beyond it, and the
+    others' Haines' keyed roots (blocks and leaves of both kinds).  The BVH must still give brute force's hits and
     any-hits exactly: huge spheres outside the tree (the ground, the balls) and in
     its leaves, rays from far out, grazing rays, rays leaving surfaces (to within
     1e-9 of tangent, where the anchored small root is ill-conditioned and may

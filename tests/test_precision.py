@@ -18,7 +18,7 @@ import pytest
 import wavefront.shapes.sphere as sphere_module
 from wavefront import Dielectric, Metal, Sphere, load_scene
 from wavefront.geometry import (FLOAT32_EXTENT, T_MIN, anchored_roots, first_root, key_root, nearest_root,
-                                nearest_root_key, sphere_roots)
+                                nearest_root_key, sphere_root_keys, sphere_roots)
 from wavefront.bvh import BVH
 from wavefront.scene import precision_of
 from wavefront.shapes import Primitives, SphereSet
@@ -264,6 +264,34 @@ def test_anchored_keys_give_the_anchored_roots_bit_for_bit(far_out):
     assert np.all(got[~hit] == np.inf) and hit.mean() > 0.5
     np.testing.assert_array_equal((keys == keys.min(axis=0))[:, hit], (t == nearest)[:, hit])
     assert (np.abs(origin).max(axis=0) > FLOAT32_EXTENT).any() == far_out
+
+
+def test_only_spheres_reaching_past_float32_extent_are_anchored():
+    """In an anchored set the spheres within FLOAT32_EXTENT keep Haines' keyed
+    roots (as in a set without huge spheres), on rays in the set's type, in
+    blocks of both kinds, pair by pair and in subsets alike."""
+    spheres = cornell_spheres().compile().shapes.kinds[0]
+    reach = np.linalg.norm(spheres.center.astype(np.float64), axis=0) + spheres.radius.astype(np.float64)
+    np.testing.assert_array_equal(spheres.anchor, reach > FLOAT32_EXTENT)
+    assert spheres.anchor.any() and not spheres.anchor.all()
+    rng = np.random.default_rng(13)
+    n, m = 3000, len(spheres)
+    origin = rng.uniform(-0.95, 0.95, (3, n)).astype(np.float32)
+    direction = normalize(rng.normal(size=(3, n)))  # float64: taken in the set's type
+    own = direction.astype(np.float32)
+    t = spheres.t_block(0, m, origin, direction)
+    small, huge = np.flatnonzero(~spheres.anchor), np.flatnonzero(spheres.anchor)
+    plain = key_root(sphere_root_keys(spheres.center[:, small, None], spheres.radius_squared[small, None],
+                                      origin[:, None, :], own[:, None, :]))
+    np.testing.assert_array_equal(t[small], plain)
+    fields = [np.take(getattr(spheres, f), huge, axis=-1)[..., None] for f in SphereSet.ANCHORED_FIELDS]
+    np.testing.assert_array_equal(t[huge], first_root(*anchored_roots(*fields, origin[:, None, :], own[:, None, :])))
+    assert np.isfinite(t[small]).any() and np.isfinite(t[huge]).any()
+    pick = rng.integers(0, m, n)
+    np.testing.assert_array_equal(spheres.t_pairs(pick, origin, direction), t[pick, np.arange(n)])
+    part = spheres.subset(small)
+    assert not part.anchored
+    np.testing.assert_array_equal(part.t_block(0, small.size, origin, own), plain)
 
 
 def test_first_root_is_nearest_root_on_haines_roots():

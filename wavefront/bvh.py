@@ -44,13 +44,14 @@ halves the bytes every level gathers and doubles the SIMD width, which is
 most of what a level costs.
 
 Float32 scenes with huge spheres (the cover scene's ground of radius 1000)
-test every sphere with the anchored roots (``geometry.anchored_roots``: the
-near root as the power of the origin over the far root, and a relative
-``t_min`` for rays from beyond ``FLOAT32_EXTENT``).  The hits are still brute
-force's, exactly:
+test those reaching past ``FLOAT32_EXTENT`` with the anchored roots
+(``geometry.anchored_roots``: the near root as the power of the origin over
+the far root, and a relative ``t_min`` for rays from beyond
+``FLOAT32_EXTENT``), the others (the cover's balls) with Haines' keyed roots
+as in any float32 set (``SphereSet.anchor``).  The hits are still brute force's, exactly:
 
-* the same arithmetic on the same numbers: the leaves' ``t_pairs`` run the
-  anchored test elementwise on the set's own float32 fields, and each ray's
+* the same arithmetic on the same numbers: the leaves' ``t_pairs`` run each
+  sphere's own test elementwise on the set's own float32 fields, and each ray's
   ``t_min`` depends on its own origin only (one within FLOAT32_EXTENT gets
   float32 ``T_MIN`` whatever shares its call); the outsized spheres (the
   ground, the balls) are a subset of the same set, copied, tested by brute
