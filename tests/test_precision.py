@@ -434,16 +434,21 @@ def _wrong_power(center, radius_squared, near_point, far_point, origin, directio
     return anchored_roots(center, radius_squared, near_point, center, origin, direction)
 
 
-def test_float32_image_is_the_float64_image_and_a_wrong_power_is_rejected(monkeypatch):
-    scene = cornell_spheres().with_overrides(width=24, height=24)
-    wide = with_settings(scene, precision="float64")
-    f64 = estimate(wide, 12, 300, samples_per_pixel=32)
-    f32 = estimate(scene, 12, 500, samples_per_pixel=32)
+def assert_float32_is_float64_and_a_wrong_power_is_rejected(monkeypatch, scene, samples_per_pixel):
+    """``scene``'s anchored float32 image against its float64 image (per-block
+    z-test over 12 seeds each), and the same test rejects :func:`_wrong_power`."""
+    f64 = estimate(with_settings(scene, precision="float64"), 12, 300, samples_per_pixel=samples_per_pixel)
+    f32 = estimate(scene, 12, 500, samples_per_pixel=samples_per_pixel)
     bad, z = rejected(f32, f64)
     assert not bad, f"float32 differs from float64 (max |z| {z:.1f})"
     monkeypatch.setattr(sphere_module, "anchored_roots", _wrong_power)
-    wrong = estimate(scene, 12, 700, samples_per_pixel=32)
+    wrong = estimate(scene, 12, 700, samples_per_pixel=samples_per_pixel)
     assert rejected(wrong, f64)[0], "the z-test did not reject a wrong power of the origin"
+
+
+def test_float32_image_is_the_float64_image_and_a_wrong_power_is_rejected(monkeypatch):
+    assert_float32_is_float64_and_a_wrong_power_is_rejected(
+        monkeypatch, cornell_spheres().with_overrides(width=24, height=24), 32)
 
 
 def test_float32_huge_spheres_image_does_not_depend_on_workers_or_chunk_size():
@@ -463,14 +468,8 @@ def test_cover_scene_float32_image_is_the_float64_image_and_a_wrong_power_is_rej
     """The cover scene through the BVH, anchored float32 against float64: the
     per-block z-test of the Cornell room above, on the ground's horizon, the
     carpet and the glass balls; the same wrong power of the origin must fail it."""
-    scene = load_scene(SCENES / "final_scene.yaml").with_overrides(width=48, height=28)
-    f64 = estimate(with_settings(scene, precision="float64"), 12, 300, samples_per_pixel=16)
-    f32 = estimate(scene, 12, 500, samples_per_pixel=16)
-    bad, z = rejected(f32, f64)
-    assert not bad, f"float32 differs from float64 (max |z| {z:.1f})"
-    monkeypatch.setattr(sphere_module, "anchored_roots", _wrong_power)
-    wrong = estimate(scene, 12, 700, samples_per_pixel=16)
-    assert rejected(wrong, f64)[0], "the z-test did not reject a wrong power of the origin"
+    assert_float32_is_float64_and_a_wrong_power_is_rejected(
+        monkeypatch, load_scene(SCENES / "final_scene.yaml").with_overrides(width=48, height=28), 16)
 
 
 def test_anchored_sets_take_rays_of_another_type():
