@@ -177,3 +177,28 @@ def test_a_local_cluster_worker_is_never_planned_as_the_parent():
     with pytest.raises(MemoryBudgetError, match="1 worker process 80 MiB"):
         plan_memory(200 * mib, 1, None, base=60 * mib, film=100 * mib, per_worker=80 * mib, output=50 * mib,
                     lasting=True)
+
+
+@pytest.mark.parametrize("case", ["writing", "paths", "inline"])
+def test_a_refusals_parts_add_up_to_its_total(case):
+    """The refusal lists the parts of the peak it refuses: writing the image
+    (with lasting workers' paths still resident), or the render's paths and,
+    where workers send them, their finished tasks' results (they were left
+    out, and a local cluster's refusal said 16,293 MiB of parts summing to
+    14,462; session 11's review)."""
+    import re
+
+    from wavefront.memory import MemoryBudgetError, MiB
+    from wavefront.render import plan_memory
+
+    base, film, per_worker = 40 * MiB, 100 * MiB, 80 * MiB
+    kwargs = {"writing": dict(workers=1, chunk_size=None, output=90 * MiB, lasting=True, cluster=40 * MiB),
+              "paths": dict(workers=1, chunk_size=10_000_000, output=1 * MiB, lasting=True, cluster=40 * MiB),
+              "inline": dict(workers=1, chunk_size=10_000_000, output=1 * MiB)}[case]
+    with pytest.raises(MemoryBudgetError) as e:
+        plan_memory(200 * MiB, base=base, film=film, per_worker=per_worker, **kwargs)
+    message = str(e.value)
+    total = float(re.search(r"needs about ([\d,.]+) MiB", message)[1].replace(",", ""))
+    listed = message.split("(", 1)[1].split(")", 1)[0]
+    parts = [float(x.replace(",", "")) for x in re.findall(r"([\d,.]+) MiB", listed)]
+    assert abs(sum(parts) - total) <= 0.1 * len(parts) + 1, message

@@ -236,10 +236,17 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
                      f"{_mib(smallest.workers * per_worker)}")
     if film:
         parts.append(f"the film {_mib(film)}")
-    if smallest.peak == smallest.base + smallest.film + output:
-        parts.append(f"writing the image {_mib(output)}")
+    # the parts of whichever peak is the larger, so that they add up to it: the render's
+    # (paths in flight, and where workers send results, their finished tasks' sums) or
+    # writing the image's (with lasting workers still resident, their paths too)
+    paths = f"{smallest.capacity} paths in flight {_mib(smallest.capacity * smallest.path_bytes)}"
+    if smallest.peak > smallest.render_peak:
+        parts += [paths, f"writing the image {_mib(output)}"] if lasting else [f"writing the image {_mib(output)}"]
     else:
-        parts.append(f"{smallest.capacity} paths in flight {_mib(smallest.capacity * smallest.path_bytes)}")
+        parts.append(paths)
+        if smallest.workers > 1 or lasting:
+            results = smallest.workers * smallest.capacity * smallest.result_bytes_per_path
+            parts.append(f"finished tasks' results {_mib(results)}")
     raise MemoryBudgetError(f"the render needs about {_mib(smallest.peak)} ({', '.join(parts)}), "
                             f"more than the memory budget of {_mib(memory)}")
 
