@@ -401,7 +401,7 @@ def anchored_roots(center, radius_squared, near_point, far_point, origin, direct
     # hit either way.  Two passes, in sqrt_disc's spent block: ~1.3 % of this
     # function, 2-4 % of brute force over cornell_spheres' or the cover's
     # anchored spheres (their recorded calls), none seen in whole renders.
-    cap = np.abs(big, out=sqrt_disc if sqrt_disc.shape == big.shape and sqrt_disc.dtype == big.dtype else None)
+    cap = np.abs(big, out=sqrt_disc)  # (one type and shape: the rays were cast to the anchors' type above)
     np.minimum(power, cap, out=power)
     reach = np.maximum(np.maximum(np.abs(origin[0]), np.abs(origin[1])), np.abs(origin[2]))
     if reach.size == 0 or reach.max() <= FLOAT32_EXTENT:  # max(initial=0) goes through a Python wrapper
