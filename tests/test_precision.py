@@ -18,7 +18,7 @@ import pytest
 import wavefront.shapes.sphere as sphere_module
 from wavefront import Dielectric, Metal, Sphere, load_scene
 from wavefront.geometry import (FLOAT32_EXTENT, T_MIN, anchored_roots, first_root, key_root, nearest_root,
-                                nearest_root_key, sphere_root_keys, sphere_roots)
+                                nearest_root_key, roots_key, sphere_root_keys, sphere_roots)
 from wavefront.bvh import BVH
 from wavefront.scene import precision_of
 from wavefront.shapes import Primitives, SphereSet
@@ -294,6 +294,50 @@ def test_only_spheres_reaching_past_float32_extent_are_anchored():
     np.testing.assert_array_equal(part.t_block(0, small.size, origin, own), plain)
 
 
+@pytest.mark.parametrize("far_out", [False, True])
+@pytest.mark.parametrize("ground_row", [0, 1, 3])
+def test_mixed_blocks_key_each_kind_in_its_rows(ground_row, far_out):
+    """A block of anchored and plain spheres (the cover's outsized ones: a
+    ground of radius 1000 and three balls at one height) keys each kind in
+    its rows, the plain ones with the coordinates they share among
+    themselves (y and z; the ground shares only z) as rows: the keys of each
+    kind's full block, bit for bit, whether each kind's rows are a run
+    (written in place) or not, in blocks and sub-blocks.  The ground's
+    antipodes have coordinates +0.0, which its roots take as the rays' own
+    (never writing into the rays), with rays within FLOAT32_EXTENT and some
+    beyond it."""
+    center = np.array([[-4.0, 0.0, 4.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
+    center = np.insert(center, ground_row, [0.0, -1000.0, 0.0], axis=1)
+    radius = np.insert(np.array([1.0, 1.0, 1.0]), ground_row, 1000.0)
+    spheres = SphereSet(center, radius, np.zeros(4, np.int32), np.float32)
+    assert np.flatnonzero(spheres.anchor).tolist() == [ground_row] and spheres.shared_axes == (2,)
+    rng = np.random.default_rng(17)
+    n = 5000
+    origin = (rng.uniform(-6, 6, (3, n)) + [[0], [3], [0]]).astype(np.float32)
+    origin[:, :40] = spheres.center[:, [ground_row - 1 if ground_row else 1]]  # rays from a centre: exact zeros
+    if far_out:
+        origin[:, 40:400] *= np.float32(300.0)
+    direction = normalize(rng.normal(size=(3, n))).astype(np.float32)
+    rays = origin.copy(), direction.copy()
+    assert spheres._anchor_zeros(0, 4, np.array([ground_row])) == ((0, 1, 2), (0, 2))
+    small, huge = np.flatnonzero(~spheres.anchor), np.flatnonzero(spheres.anchor)
+    o, d = origin[:, None, :], direction[:, None, :]
+    expected = np.empty((4, n), np.uint32)
+    expected[small] = sphere_root_keys(spheres.center[:, small, None], spheres.radius_squared[small, None], o, d)
+    fields = [np.take(getattr(spheres, f), huge, axis=-1)[..., None] for f in SphereSet.ANCHORED_FIELDS]
+    a, b, t_min = anchored_roots(*fields, o, d)
+    assert (np.ndim(t_min) > 0) == far_out
+    expected[huge] = roots_key(first_root(a, b, t_min)) if far_out else roots_key(a, b)
+    assert spheres._key_plan(0, 4)[0][1].shape == (1, 1)  # the balls' y: one row
+    for _ in range(2):  # the plans are made once per block, then reused
+        np.testing.assert_array_equal(spheres.key_block(0, 4, origin, direction), expected)
+        np.testing.assert_array_equal(spheres.key_block(1, 4, origin, direction), expected[1:])
+        np.testing.assert_array_equal(origin, rays[0])
+        np.testing.assert_array_equal(direction, rays[1])
+    hit = key_root(expected.min(axis=0)) < np.inf
+    assert 0.3 < hit.mean() < 0.95 and (key_root(expected[small].min(axis=0)) < np.inf).mean() > 0.02
+
+
 def test_first_root_is_nearest_root_on_haines_roots():
     """The anchored test's root choice is nearest_root's arithmetic on any pair of roots."""
     rng = np.random.default_rng(2)
@@ -428,9 +472,10 @@ def test_root_keys_negative_control():
     assert key_root(nearest_root_key(h, s))[0] == np.inf
 
 
-def _wrong_power(center, radius_squared, near_point, far_point, origin, direction):
+def _wrong_power(center, radius_squared, near_point, far_point, origin, direction, zeros=((), ())):
     """A deliberately wrong anchored test: the power of the origin taken
-    from the near point and the centre (not two antipodes)."""
+    from the near point and the centre (not two antipodes; the antipodes'
+    zero coordinates are not the centre's, so ``zeros`` is not passed on)."""
     return anchored_roots(center, radius_squared, near_point, center, origin, direction)
 
 

@@ -133,6 +133,7 @@ class SphereSet(ShapeKind):
             end = np.asarray(velocity, dtype=np.float64).reshape(3, -1) + center
             self.velocity = np.ascontiguousarray(end.astype(dtype) - self.center)
         self.shared_axes = self._shared_axes()
+        self._plans = {}  # (start, stop): the fields of a block's plain spheres (see _key_plan)
 
     def _shared_axes(self) -> tuple[int, ...]:
         """The coordinates (0, 1, 2 for x, y, z) that every sphere of the set
@@ -155,7 +156,48 @@ class SphereSet(ShapeKind):
         part = super().subset(idx)
         part.shared_axes = part._shared_axes()
         part.anchored = bool(part.anchor.any())
+        part._plans = {}
         return part
+
+    def _key_plan(self, start, stop):
+        """The fields with which :meth:`key_block` keys the plain (not
+        anchored) spheres of block ``start:stop``, and their rows of the
+        block (a slice where they are a run of rows), worked out once per
+        block; None where every sphere of the block is anchored.  A
+        coordinate those spheres share (bit for bit) is one row, as
+        ``shared_axes`` (the x and y not both), but among them alone: the
+        cover's three outsized balls share y as well as z, which its
+        anchored ground does not (two passes over their block fewer)."""
+        key = (start, stop)
+        if key not in self._plans:
+            _, plain = self._split(start, stop)
+            if plain is None:
+                self._plans[key] = None
+                return None
+            rows = np.arange(stop - start) if isinstance(plain, slice) else plain
+            bits = self.center[:, start + rows].view(f"u{self.dtype.itemsize}")  # bits: -0.0 is not 0.0 here
+            shared = [i for i in range(3) if rows.size > 1 and (bits[i] == bits[i, 0]).all()]
+            if 0 in shared and 1 in shared:
+                shared.remove(1)
+            center = self.center[:, start + rows, None]
+            radius_squared = self.radius_squared[start + rows, None]
+            if rows.size and rows[-1] - rows[0] == rows.size - 1:
+                rows = slice(int(rows[0]), int(rows[-1]) + 1)
+            self._plans[key] = ([center[i, :1] if i in shared else center[i] for i in range(3)], radius_squared, rows)
+        return self._plans[key]
+
+    def _anchor_zeros(self, start, stop, rows):
+        """The axes on which every anchored sphere of block ``start:stop`` (its
+        ``rows``, or all) has its ``near_point``, and those on which it has
+        its ``far_point``, at +0.0 (bits, not values: not -0.0), once per
+        block: :func:`~wavefront.geometry.anchored_roots` then takes the ray's
+        own coordinate for the difference."""
+        key = ("zeros", start, stop)
+        if key not in self._plans:
+            where = slice(start, stop) if rows is None else start + rows
+            self._plans[key] = tuple(tuple(i for i in range(3) if not point[i, where].view(f"u{self.dtype.itemsize}").any())
+                                     for point in (self.near_point, self.far_point))
+        return self._plans[key]
 
     def _own_type(self, origin, direction):
         """Rays in an anchored set's type (see ``anchor``; no copy where they have it)."""
@@ -259,31 +301,47 @@ class SphereSet(ShapeKind):
         origin, direction = self._own_type(origin, direction)
         anchored, plain = self._split(start, stop)
         if plain is None:
-            return _anchored_keys(*self._fields(self.ANCHORED_FIELDS, start, stop), origin, direction)
-        if anchored is None:
+            return _anchored_keys(*self._fields(self.ANCHORED_FIELDS, start, stop), origin, direction,
+                                  zeros=self._anchor_zeros(start, stop, None))
+        if not origin.dtype == direction.dtype == self.dtype:  # (rays of mixed types, as some tests pass)
             return self._plain_keys(*self.block(start, stop), origin, direction)
-        keys = np.empty((stop - start, origin.shape[1]), dtype=f"u{self.dtype.itemsize}")  # rays in its type
-        keys[anchored] = _anchored_keys(*self._fields(self.ANCHORED_FIELDS, start, stop, anchored), origin, direction)
-        keys[plain] = self._plain_keys(*self._fields(self.FIELDS, start, stop, plain), origin, direction)
+        center, radius_squared, rows = self._key_plan(start, stop)
+        if anchored is None:
+            return self._plain_keys(center, radius_squared, origin, direction, planned=True)
+        # each kind's keys written into its rows of the block (in place where they are a run of rows)
+        keys = np.empty((stop - start, origin.shape[1]), dtype=f"u{self.dtype.itemsize}")
+        fields = self._fields(self.ANCHORED_FIELDS, start, stop, anchored)
+        zeros = self._anchor_zeros(start, stop, anchored)
+        if anchored[-1] - anchored[0] == anchored.size - 1:
+            _anchored_keys(*fields, origin, direction, out=keys[anchored[0]:anchored[-1] + 1], zeros=zeros)
+        else:
+            keys[anchored] = _anchored_keys(*fields, origin, direction, zeros=zeros)
+        if isinstance(rows, slice):
+            self._plain_keys(center, radius_squared, origin, direction, out=keys[rows], planned=True)
+        else:
+            keys[rows] = self._plain_keys(center, radius_squared, origin, direction, planned=True)
         return keys
 
-    def _plain_keys(self, center, radius_squared, origin, direction):
+    def _plain_keys(self, center, radius_squared, origin, direction, out=None, planned=False):
         """:func:`~wavefront.geometry.sphere_root_keys` of still spheres (fields
-        as :meth:`block`'s) against all rays, in chunks of rays (``KEY_BLOCK_BYTES``)."""
+        as :meth:`block`'s, or ``planned``: a :meth:`_key_plan`'s, its shared
+        coordinates rows already) against all rays, in chunks of rays
+        (``KEY_BLOCK_BYTES``); written into ``out`` where given."""
         m = radius_squared.shape[0]
         o, d = origin[:, None, :], direction[:, None, :]
-        if self.shared_axes and m > 1 and origin.dtype == direction.dtype == self.dtype:
+        if not planned and self.shared_axes and m > 1 and origin.dtype == direction.dtype == self.dtype:
             center = [center[i][:1] if i in self.shared_axes else center[i] for i in range(3)]
         n = origin.shape[1]
         step = max(KEY_MIN_RAYS, KEY_BLOCK_BYTES // (max(1, m) * self.dtype.itemsize))  # (an empty block too)
         if n <= step:
-            return sphere_root_keys(center, radius_squared, o, d)
+            return sphere_root_keys(center, radius_squared, o, d, out)
         step = -(-n // -(-n // step))  # chunks of equal size
-        width = np.result_type(self.dtype, origin.dtype, direction.dtype).itemsize  # the roots' (unsigned twin: keys)
-        keys = np.empty((m, n), dtype=f"u{width}")
+        if out is None:
+            width = np.result_type(self.dtype, origin.dtype, direction.dtype).itemsize  # the roots' (unsigned twin: keys)
+            out = np.empty((m, n), dtype=f"u{width}")
         for a in range(0, n, step):
-            sphere_root_keys(center, radius_squared, o[..., a:a + step], d[..., a:a + step], out=keys[:, a:a + step])
-        return keys
+            sphere_root_keys(center, radius_squared, o[..., a:a + step], d[..., a:a + step], out=out[:, a:a + step])
+        return out
 
     def t_pairs(self, idx, origin, direction, time=None):
         if self.anchored:  # each sphere's own arithmetic, as key_block's
@@ -383,13 +441,18 @@ def root_within(t, t_min, t_max):
     return inside
 
 
-def _anchored_keys(center, radius_squared, near_point, far_point, origin, direction):
-    """Anchored spheres' keys (fields as :meth:`SphereSet.block`'s): see :meth:`SphereSet.key_block`."""
+def _anchored_keys(center, radius_squared, near_point, far_point, origin, direction, out=None, zeros=((), ())):
+    """Anchored spheres' keys (fields as :meth:`SphereSet.block`'s): see
+    :meth:`SphereSet.key_block`; written into ``out`` where given (``zeros``:
+    see :func:`~wavefront.geometry.anchored_roots`)."""
     a, b, t_min = anchored_roots(center, radius_squared, near_point, far_point, origin[:, None, :],
-                                 direction[:, None, :])
+                                 direction[:, None, :], zeros)
     if np.ndim(t_min):
-        return roots_key(first_root(a, b, t_min))
-    return roots_key(a, b)
+        keys = roots_key(first_root(a, b, t_min))
+        if out is not None:
+            np.copyto(out, keys)
+        return keys if out is None else out
+    return roots_key(a, b, out)
 
 
 def _anchored_t(center, radius_squared, near_point, far_point, origin, direction):
