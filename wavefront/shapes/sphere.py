@@ -430,7 +430,7 @@ class SphereSet(ShapeKind):
         point += origin  # origin + t direction (addition commutes exactly)
         center = self.center_at(idx, time)  # a new array: the outward normal is formed in it
         outward = np.subtract(point, center, out=center)
-        outward *= self.inverse_radius.take(idx)
+        outward *= gather(self.inverse_radius, idx)
         return point, outward, outward, (sphere_uv(object_normal(self.rotation, idx, outward)) if uv else None)
 
 
