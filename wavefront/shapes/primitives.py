@@ -30,8 +30,19 @@ from .base import Hits, ShapeKind, SurfaceHits, float32_down, float32_up, pad_ex
 # ms at 4096 / 8192 / 12288 / 16384 rays): cornell_spheres 64 / 63 / 63 / 65
 # (its nearest-hit query 2.09 -> 1.73 ms a bounce from 4096 to 8192, the
 # shadow rays' 1.13 -> 0.89), the Cornell box 70 / 67 / 67 / 69, three_spheres
-# (400x225, 1 spp) 53 / 51 / 52 / 53.
-BRUTE_FORCE_RAYS = 8192
+# (400x225, 1 spp) 53 / 51 / 52 / 53.  Session 12, replaying recorded
+# queries (each call's least time of 7-9, interleaved, summed; sphere keys
+# still go through KEY_BLOCK_BYTES's chunks of rays, which bound the exact
+# test's temporaries), ns a ray at 8192 / 16384 / 32768 rays: W1's nearest
+# hits 21.7 / 21.0 / 20.0 (65536: 20.8), cornell_spheres' 55.7 / 46.3 / 45.2
+# and its shadow rays' 47.4 / 41.3 / 40.9, the Cornell box's 189 / 167 / 170
+# and 183 / 185 / 155: each chunk's ~40 NumPy calls and their Python cost
+# fewer.  Whole renders (CPU of one worker, medians of interleaved runs):
+# W1 400x225x30 0.963 of 8192 (9 runs, per-run ratios 0.89-1.17); against
+# session 11's tree, so with session 12's other brute-force and hit-record
+# changes, cornell_spheres 160x160x8 0.974 (9 runs, 0.95-1.12) and the
+# Cornell box 0.967 (5 runs, 0.95-1.00).
+BRUTE_FORCE_RAYS = 32768
 
 # The float32 slab pre-filter of flat primitives (see SlabFilter) grows each
 # primitive's padded box by this much of the scene's extent E: far more than
