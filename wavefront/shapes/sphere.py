@@ -19,7 +19,8 @@ __all__ = ["Sphere", "SphereSet", "world_sphere", "world_center1", "world_rotati
 # alone ~15 % faster in chunks of 5,000-8,192 rays than at once (4,096 or
 # fewer: no faster); the whole brute force at this budget (16,384 rays in
 # three chunks) 0.92-0.96 of 1 << 18 (two chunks), 1.07-1.13 of 1 << 30
-# (none).  W1's 5 x 8,192 float32 blocks (160 KiB) stay whole.
+# (none).  W1's 5 x 32,768 float32 blocks (primitives.BRUTE_FORCE_RAYS) are
+# keyed in four chunks of 8,192 rays (160 KiB).
 KEY_BLOCK_BYTES = 3 << 16
 KEY_MIN_RAYS = 1024  # never chunks of fewer rays: each costs ~26 NumPy calls
 # Tried in session 11, not kept (the same recorded calls):
@@ -35,6 +36,19 @@ KEY_MIN_RAYS = 1024  # never chunks of fewer rays: each costs ~26 NumPy calls
 # - W1's 5 x 8,192 float32 blocks in chunks of 4,096 or 2,731 rays: 1.23x and
 #   1.35x slower; the five temporaries as 64-byte aligned views of one
 #   workspace (with and without aligned copies of the rays): no faster.
+# Tried in session 12, not kept:
+# - spheres sharing a centre (W1's hollow glass ball) with h and the offset
+#   from the ray's line computed once per centre, the twin's discriminant
+#   and roots in rows of their own: W1's keys 120.7 -> 118.7 us a 5 x 8,192
+#   block (each twin costs five calls of a row, for fifteen rows of passes),
+#   and the whole nearest-hit query 5-7 % slower with the keys put back in
+#   row order (three calls into a new block);
+# - float32 key blocks four times larger (W1's 5 x 32,768 keys whole, one
+#   call each where four chunks took ~26 each): W1's recorded queries 0.89-
+#   0.95 of the chunks, but whole W1 renders 1.016 and 0.996 (two interleaved
+#   A/Bs of 9 fresh processes each); alternating in one process 0.974 and
+#   0.981 (medians of 12 and 14 renders), pairwise 0.983 and 1.005: not
+#   measurably faster.
 
 
 def world_sphere(sphere: Sphere) -> tuple[np.ndarray, float]:
