@@ -629,3 +629,76 @@ def test_a_ply_of_huge_polygons_is_held_to_the_memory_budget_before_parsing(tmp_
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "meshes[0].file: loading" in r.stderr and "fan.ply" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr and not out.exists()
+
+
+def _built(data: bytes, ext: str) -> int:
+    """The triangles trimesh builds of ``data`` (0 if it refuses it)."""
+    import io
+
+    try:
+        with np.errstate(all="ignore"):
+            scene = trimesh.load_scene(io.BytesIO(mesh_files._text_as_utf8(data, ext)), file_type=ext, process=False)
+    except Exception:
+        return 0
+    return sum(len(g.faces) for g in scene.geometry.values() if hasattr(g, "faces"))
+
+
+def _square_off(vertices: bytes, faces: bytes, lines: bytes) -> bytes:
+    return b"OFF\n" + vertices + b" " + faces + b" 0\n" + b"".join(b"%d %d %d\n" % v for v in SQUARE) + lines
+
+
+FAN = b" ".join(b"%d" % (i % 4) for i in range(2000))  # 2000 indices: a fan of 1998 triangles
+
+
+@pytest.mark.parametrize("vertices,faces", [(b"+4", b"50"), (b"0_4", b"50"), ("٤".encode(), b"50"),
+                                            ("４".encode(), b"50"), (b"4", b"+50"), (b"4", b"5_0"),
+                                            (b"4", "٥٠".encode())])
+def test_off_header_counts_are_read_as_trimesh_reads_them(monkeypatch, vertices, faces):
+    """trimesh reads an OFF's counts with int() (np.array(words, dtype=np.int64)):
+    ``+4``, ``0_4`` and other scripts' digits are counts.  Read as ASCII
+    digits only, they counted 0 triangles of the 100 trimesh then built."""
+    data = _square_off(vertices, faces, b"4 0 1 2 3\n" * 50)
+    assert _built(data, "off") == 100
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._off_triangle_bound(data, 10**6) == 100
+
+
+@pytest.mark.parametrize("count", [b"+2000", b"2_000", b"-2", "٢٠٠٠".encode(), "２０００".encode()])
+def test_off_face_counts_trimesh_reads_are_never_counted_short(monkeypatch, count):
+    """A face line's count is int() of its first word to trimesh, and a
+    negative one a slice: ``-2`` takes every index but the last (a fan of
+    1996 triangles from 2000 indices).  Each of these lines counted nothing
+    (``2_000``: 2 of 1998), so 50 of them were 0 counted of ~100,000 built."""
+    data = _square_off(b"4", b"50", (count + b" " + FAN + b"\n") * 50)
+    built = _built(data, "off")
+    assert built >= 50 * 1996
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._off_triangle_bound(data, 10**6) >= built
+
+
+@pytest.mark.parametrize("vertices,faces,problem", [
+    (b"4", b"-7", "the OFF header's face count '-7' is negative"),  # trimesh: a slice from the end, 96 triangles
+    (b"-1", b"50", "the OFF header's vertex count '-1' is negative"),
+    (b"4", b"50.0", "the OFF header's face count '50.0' is not a whole number"),
+    (b"4e0", b"50", "the OFF header's vertex count '4e0' is not a whole number"),
+    (b"4", b"99999999999999999999", "the OFF header's face count '99999999999999999999' is out of range"),
+])
+def test_off_header_counts_trimesh_would_not_read_as_counts_are_refused(tmp_path, vertices, faces, problem):
+    scene = mesh_scene(tmp_path, "bad.off", data=_square_off(vertices, faces, b"4 0 1 2 3\n" * 50))
+    message = refused(scene)
+    assert message == f"{scene}: meshes[0].file: {tmp_path / 'bad.off'}: {problem}", message
+
+
+def test_a_negative_off_count_exits_2_with_one_line_and_no_output(tmp_path):
+    import subprocess
+    import sys
+
+    scene = mesh_scene(tmp_path, "bad.off", data=_square_off(b"4", b"-7", b"4 0 1 2 3\n" * 50))
+    out = tmp_path / "out.png"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", str(scene), "-o", str(out), "--width", "8",
+                        "--height", "8", "--spp", "1"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and not out.exists(), r
+    assert r.stderr.strip().splitlines() == [f"wavefront: error: {scene}: meshes[0].file: {tmp_path / 'bad.off'}: "
+                                             "the OFF header's face count '-7' is negative"], r.stderr

@@ -206,7 +206,9 @@ def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
     skip = sum(e[1] for e in elements[:face])
     if not data.isascii():  # trimesh splits the body's text at U+2028, U+2029 and NEL too
         data = data[:body] + _split_as_str(data[body:], blanks=False)
-    return _line_polygons(data, body, skip, elements[face][1], blank_lines_count=True, count_first=indices == 0)
+    if indices != 0:
+        return 0
+    return _line_polygons(data, body, skip, elements[face][1], blank_lines_count=True)
 
 
 def _off_triangle_bound(data: bytes, max_faces: int) -> int:
@@ -242,13 +244,44 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
         position = line_end + 1
         if words:
             counts = words
-    if counts is None or len(counts) < 2 or not all(w.isdigit() for w in counts[:2]):
-        return 0  # trimesh refuses it
-    vertices, faces = int(counts[0]), int(counts[1])
+    if counts is None or len(counts) < 2:
+        return 0  # trimesh refuses it ("a malformed vertex/face count line")
+    vertices, faces = _off_counts(counts)
     for what, count in (("vertices", vertices), ("faces", faces)):
         if count > 3 * max_faces:
             raise MeshError(f"declares {count} {what}; the limit is {3 * max_faces}")
-    return _line_polygons(data, position, vertices, faces, blank_lines_count=False, count_first=True)
+    return _line_polygons(data, position, vertices, faces, blank_lines_count=False)
+
+
+_OFF_COUNT_NAMES = ("vertex count", "face count", "edge count")
+
+
+def _off_counts(words: list[bytes]) -> tuple[int, int]:
+    """The vertex and face counts of an OFF's count line, read as trimesh
+    reads them: ``np.array(words, dtype=np.int64)``, which is Python's int()
+    of each word, so ``+3``, ``3_0``, ``03`` and other scripts' digits
+    (Arabic-Indic, fullwidth) are counts; ``3.0`` or ``3e0`` are not, and
+    trimesh refuses the file.  Read as ASCII digits only, the first forms
+    counted 0 triangles of a mesh trimesh then loaded whole.
+
+    Refused here with the word: a word int() does not read or int64 does not
+    hold (trimesh refuses those too), and a negative vertex or face count,
+    which trimesh takes as a slice from the end of the file's lines (a face
+    count of -7 over 4 vertices and 50 quads loaded 96 triangles)."""
+    numbers = []
+    for i, word in enumerate(words):
+        name = _OFF_COUNT_NAMES[i] if i < len(_OFF_COUNT_NAMES) else f"count {i + 1}"
+        text = word.decode("utf-8", errors="replace")
+        try:
+            number = int(text)
+        except ValueError:
+            raise MeshError(f"the OFF header's {name} {text!r} is not a whole number") from None
+        if not -2**63 <= number < 2**63:
+            raise MeshError(f"the OFF header's {name} {text!r} is out of range")
+        if number < 0 and i < 2:
+            raise MeshError(f"the OFF header's {name} {text!r} is negative")
+        numbers.append(number)
+    return numbers[0], numbers[1]
 
 
 # trimesh's comment_strip: a '#' to the next LF (only) is gone, the LF stays.
@@ -340,30 +373,36 @@ def _first_other_than_blank(a: np.ndarray, lead: np.ndarray, ends: np.ndarray) -
 
 
 def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_lines_count: bool,
-                   count_first: bool) -> int:
-    """The triangles trimesh makes of ``count`` polygon lines ``n i1 ... in``
-    (a PLY face or an OFF face) after ``skip`` lines from byte ``start``:
-    the sum of n - 2, with n held to what the line can hold (a count of 10^9
-    on a short line gives what the line lists).  A line whose count cannot
-    be read here (not digits after the blanks), and every line when the list is not the line's first value (``count_first`` false: a
-    PLY with a flag or a uv list before its indices), count nothing: a guess
-    from the line's length refused valid files, and such files are still
-    bounded by their size (the memory estimate of a mesh file) and by the
-    triangles counted once trimesh has built them.  Blank and comment lines
-    are not counted unless ``blank_lines_count`` (PLY reads every line; OFF
-    skips them).  Scanned with NumPy in chunks, never per line in Python.
+                   before: tuple[bool, ...] = (), first_applies: bool = False) -> int:
+    """At least the triangles trimesh makes of ``count`` polygon lines
+    ``n i1 ... in`` (a PLY face or an OFF face) after ``skip`` lines from
+    byte ``start``: the sum of n - 2, with n held to what the line can list
+    after its count (a count of 10^9 on a short line gives what the line
+    lists).  ``before``: the values of a PLY face before its index list, a
+    scalar (False) or a list (True) each, whose count is read to step over
+    it.  Blank and comment lines are not counted unless ``blank_lines_count``
+    (PLY reads every line; OFF skips them).  Scanned with NumPy in chunks,
+    never per line in Python.
 
-    Exact for the files trimesh reads whose counts lead their lines.  Not a
-    bound for one hostile case: an ASCII PLY whose face lines all hold the
-    same number of values but whose counts differ from the first line's
-    (trimesh then applies the first line's count to every line); its
-    triangles are still bounded by the file's size."""
+    A count is read as a whole number of ASCII digits, after an optional
+    ``+`` (and with ``_`` between digits: Python's int() reads an OFF's
+    ``4_0`` as 40; NumPy's float parse refuses it in a PLY, so trimesh loads
+    nothing).  Any other count (negative, ``4.0``, ``4e1``, other scripts'
+    digits) counts all the line lists after it: trimesh reads ``-2`` as the
+    slice ``[1:-1]`` (every value but the last, a fan of 1996 triangles from a
+    line of 2000 indices), a PLY's ``4e1`` as 40 and an OFF's Arabic-Indic
+    digits by int().  Read as counting nothing, each of them was a mesh
+    trimesh built whole with 0 triangles counted.  Valid files write plain
+    digits, for which this is exact.
+
+    ``first_applies`` (a PLY face with one list at most): trimesh applies
+    the first line's count to every line when they all hold as many values,
+    so each line counts the larger of its own count and the first's."""
     a = np.frombuffer(data, dtype=np.uint8)
     n = a.size
     seen = total = 0
     chunk_start = start
-    if not count_first:
-        return 0
+    first = None  # the first face line's count, once read (first_applies)
     only_newlines = _only_newlines(data, start)
     while chunk_start < n and seen < skip + count:
         chunk_end = min(chunk_start + _LINE_CHUNK, n)
@@ -398,19 +437,82 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
         if not mine.any():
             continue
         ends, lead = ends[mine], lead[mine]
-        tokens = (ends - lead + 1) // 2  # values a line can hold: one character and one blank each
-        value = np.zeros(lead.size, dtype=np.int64)
-        digits = np.zeros(lead.size, dtype=np.int64)
-        going = np.ones(lead.size, dtype=bool)
-        for k in range(_COUNT_DIGITS):
-            position = np.minimum(lead + k, n - 1)
-            byte = a[position]
-            going &= (lead + k < ends) & (byte >= ord("0")) & (byte <= ord("9"))
-            value = np.where(going, value * 10 + (byte.astype(np.int64) - ord("0")), value)
-            digits += going
-        # an unread count (no digits where it should start) counts nothing
-        total += int(np.maximum(np.minimum(value, tokens - 1) - 2, 0)[digits > 0].sum())
+        at, stepped = _count_positions(a, lead, ends, before) if before else (lead, np.ones(lead.size, dtype=bool))
+        value, exact = _read_counts(a, at, ends)
+        exact &= stepped
+        value = np.where(exact, value, _UNREAD)
+        if first_applies:
+            if first is None:
+                first = int(value[0])
+            value = np.maximum(value, first)
+        # values the line can list after its count (one character and one blank each); a line
+        # whose earlier lists could not be stepped over: every value it holds
+        room = np.where(stepped, (ends - at + 1) // 2 - 1, (ends - lead + 1) // 2)
+        total += int(np.maximum(np.minimum(value, room) - 2, 0).sum())
     return total
+
+
+_UNREAD = np.int64(1) << 62  # a count not read: the line lists all it can
+# Bytes that end a value: blanks, and a CR (kept at a CRLF line's end).
+_VALUE_END = _BLANK.copy()
+_VALUE_END[ord("\r")] = True
+_SEPARATOR = _VALUE_END | _LINE_BREAK
+
+
+def _read_counts(a: np.ndarray, at: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The whole numbers starting at ``at`` (each before its line's end
+    ``ends``), and whether each was read: ASCII digits after an optional
+    ``+``, ``_`` allowed between them, ending at a blank or the line's end
+    (see :func:`_line_polygons`).  At most ``_COUNT_DIGITS`` digits."""
+    n = a.size
+    position = at + ((at < ends) & (a[np.minimum(at, n - 1)] == ord("+")))
+    value = np.zeros(at.size, dtype=np.int64)
+    digits = np.zeros(at.size, dtype=np.int64)
+    used = np.zeros(at.size, dtype=np.int64)
+    going = np.ones(at.size, dtype=bool)
+    for k in range(2 * _COUNT_DIGITS):
+        inside = position + k < ends
+        byte = a[np.minimum(position + k, n - 1)]
+        digit = inside & (byte >= ord("0")) & (byte <= ord("9"))
+        going &= (digit & (digits < _COUNT_DIGITS)) | (inside & (byte == ord("_")) & (digits > 0))
+        if not going.any():
+            break
+        value = np.where(going & digit, value * 10 + (byte.astype(np.int64) - ord("0")), value)
+        digits += going & digit
+        used += going
+    stop = position + used
+    read = (digits > 0) & ((stop >= ends) | _VALUE_END[a[np.minimum(stop, n - 1)]])
+    return value, read
+
+
+def _count_positions(a: np.ndarray, lead: np.ndarray, ends: np.ndarray,
+                     before: tuple[bool, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Where each line's count is, after the values ``before`` it (a scalar
+    or a list, whose count is read to step over it), and whether each line
+    could be stepped through (a list's count not read: False).  A line with
+    fewer values gives its end.  From the positions of every value of the
+    lines' span (a few times its bytes, as the other temporaries)."""
+    low, high = int(lead[0]), int(ends[-1])
+    separator = _SEPARATOR[a[low:high]]
+    first = ~separator
+    first[1:] &= separator[:-1]  # a value starts after a separator (or where the span does)
+    del separator
+    values = np.flatnonzero(first) + low
+    del first
+    ok = np.ones(lead.size, dtype=bool)
+    if not values.size:
+        return ends.copy(), ok
+    t = np.searchsorted(values, lead)
+    last = np.searchsorted(values, ends)  # each line's values are values[t:last]
+    for is_list in before:
+        if is_list:
+            length, read = _read_counts(a, values[np.minimum(t, values.size - 1)], ends)
+            ok &= read | (t >= last)
+            t = t + 1 + np.where(read, length, 0)
+        else:
+            t = t + 1
+    t = np.minimum(t, last)
+    return np.where(t < last, values[np.minimum(t, values.size - 1)], ends), ok
 
 
 def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None = None,
