@@ -702,3 +702,67 @@ def test_a_negative_off_count_exits_2_with_one_line_and_no_output(tmp_path):
     assert r.returncode == 2 and not out.exists(), r
     assert r.stderr.strip().splitlines() == [f"wavefront: error: {scene}: meshes[0].file: {tmp_path / 'bad.off'}: "
                                              "the OFF header's face count '-7' is negative"], r.stderr
+
+
+def _square_ply(vertices=b"4", faces=b"50", rows=b"4 0 1 2 3\n" * 50, before=b"", properties=None, after=b""):
+    properties = b"property list uchar int vertex_indices\n" if properties is None else properties
+    return (b"ply\nformat ascii 1.0\n" + before + b"element vertex " + vertices
+            + b"\nproperty float x\nproperty float y\nproperty float z\nelement face " + faces + b"\n" + properties
+            + after + b"end_header\n" + b"".join(b"%d %d %d\n" % v for v in SQUARE) + rows)
+
+
+FANS = (b"2000 " + FAN + b"\n") * 50  # 50 fans of 1998 triangles
+
+
+@pytest.mark.parametrize("name,data", [
+    ("+4 vertices", _square_ply(vertices=b"+4")), ("0_4 vertices", _square_ply(vertices=b"0_4")),
+    ("Arabic-Indic face count", _square_ply(faces="٥٠".encode())), ("+50 faces", _square_ply(faces=b"+50")),
+    # the header ends at the word end_header, not at the first substring
+    ("comment xend_header", _square_ply(before=b"comment xend_header\n", rows=FANS)),
+    ("header past 64 KiB", _square_ply(before=b"comment made here\n" * 4000, rows=FANS)),
+    ("a flag before the indices", _square_ply(properties=b"property uchar flags\n"
+                                              b"property list uchar int vertex_indices\n",
+                                              rows=b"".join(b"7 " + line + b"\n" for line in FANS.splitlines()))),
+    ("both index names", _square_ply(properties=b"property list uchar int vertex_indices\n"
+                                     b"property list uchar int vertex_index\n",
+                          rows=b"".join(b"3 0 1 2 " + line + b"\n" for line in FANS.splitlines()))),
+    ("an element named again", _square_ply(before=b"element face 1\nproperty list uchar int vertex_indices\n")),
+    ("first word holds 'element'", _square_ply(faces=b"1", rows=FANS,
+                                               after=b"xelementx face 50\nproperty list uchar int vertex_indices\n")),
+    ("the first line's count for all", _square_ply(rows=b"2000 " + FAN + b"\n" + (b"3 " + FAN + b"\n") * 49)),
+])
+def test_ply_headers_and_counts_are_read_as_trimesh_reads_them(monkeypatch, name, data):
+    """Each of these was a mesh trimesh built while the pre-count counted a
+    fraction or nothing of it (0 or 50 of 99,900; a first line's 2000 indices
+    applied to every line of as many values: 2,047 of 99,900), by reading the
+    header otherwise than trimesh's _parse_header or a face's count at its
+    line's start when a flag precedes it."""
+    built = _built(data, "ply")
+    assert built >= 90
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._ply_triangle_bound(data, 10**6) == built, name
+
+
+@pytest.mark.parametrize("count", [b"+2000", b"-2", b"2e3", b"2000.0", b".2e4"])
+def test_ply_face_counts_not_read_count_all_their_line_lists(monkeypatch, count):
+    """NumPy reads a PLY's values as floats (``2e3`` is 2000) and trimesh
+    takes ``-2`` as a slice of every index but the last: each counted 1
+    triangle of the line's fan (or nothing)."""
+    data = _square_ply(rows=(count + b" " + FAN + b"\n") * 50)
+    built = _built(data, "ply")
+    assert built >= 50 * 1996
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._ply_triangle_bound(data, 10**6) >= built
+
+
+@pytest.mark.parametrize("vertices,faces,problem", [
+    (b"4.0", b"50", "the PLY header's count '4.0' of element 'vertex' (line 3) is not a whole number"),
+    (b"4", b"5e1", "the PLY header's count '5e1' of element 'face' (line 7) is not a whole number"),
+    (b"-4", b"50", "the PLY header's count '-4' of element 'vertex' (line 3) is negative"),
+])
+def test_ply_header_counts_trimesh_would_not_read_as_counts_are_refused(tmp_path, vertices, faces, problem):
+    scene = mesh_scene(tmp_path, "bad.ply", data=_square_ply(vertices, faces))
+    message = refused(scene)
+    assert message == f"{scene}: meshes[0].file: {tmp_path / 'bad.ply'}: {problem}", message

@@ -136,79 +136,147 @@ def _array(obj, value, path: str, dtype, width: int) -> np.ndarray:
     return a
 
 
-_PLY_TYPES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "int64": 8, "uint64": 8,
-              "float64": 8, "double": 8, "float16": 2}  # bytes of each PLY type (trimesh's table)
+# numpy's code of each PLY type (trimesh's table)
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1", "short": "i2", "ushort": "u2", "int16": "i2",
+              "uint16": "u2", "int": "i4", "uint": "u4", "int32": "i4", "uint32": "u4", "float": "f4", "float32": "f4",
+              "int64": "i8", "uint64": "u8", "float64": "f8", "double": "f8", "float16": "f2"}
+# Lines of a PLY header trimesh acts on contain one of these (its other lines are comments).
+_PLY_HEADER_WORDS = re.compile(rb"element|property|end_header")
+
+
+def _ply_header(data: bytes, max_faces: int) -> tuple[dict, bool, bool, int] | None:
+    """A PLY header as trimesh's ``_parse_header`` reads it: ``(elements,
+    ascii, big_endian, body)``, elements ``{name: (count, {property: (type,
+    None) or (count type, item type) for a list})}`` in its order, ``body``
+    the offset after the header; None where trimesh refuses the header.
+
+    Its rules, which the pre-count read otherwise (each a file whose faces
+    it counted short, 0 of ~100,000 built): lines end at LF alone (readline);
+    the second line is the format whatever it says; the header ends at the
+    first line holding the word ``end_header`` (``comment xend_header`` is
+    not one; a substring search ended it there) however far in (not only in
+    the first 64 KiB); a line is an element when its first word contains
+    ``element`` and a property when it contains ``property``; an element
+    named again replaces the first but keeps its place (a dict); a count is
+    Python's int() of its word (``+50``, ``5_0`` and other scripts' digits
+    are counts).  Refused here, with the line and the word: a count int()
+    does not read (``3.0``, ``3e0``: trimesh refuses the file too) and a
+    negative count (trimesh takes it as a slice of the body's lines, which
+    can step back over another element's); every count is held to the limit
+    (a header may claim 10^12 faces over a body of a few bytes)."""
+    first = data.find(b"\n")
+    if first < 0 or b"ply" not in data[:first].lower():
+        return None
+    second = data.find(b"\n", first + 1)
+    if second < 0:
+        return None
+    encoding = _header_text(data[first + 1:second]).strip().lower()
+    elements, name, position = {}, None, second + 1
+    for match in _PLY_HEADER_WORDS.finditer(data, position):
+        if match.start() < position:
+            continue  # on a line already read
+        start = data.rfind(b"\n", 0, match.start()) + 1
+        end = data.find(b"\n", match.start())
+        end = len(data) if end < 0 else end
+        position = end + 1
+        words = _header_text(data[start:end]).split()
+        if "end_header" in words:
+            return elements, "ascii" in encoding, "big" in encoding, min(position, len(data))
+        if not words:
+            continue
+        if "element" in words[0]:
+            if len(words) != 3:
+                return None
+            name, text = words[1], words[2]
+            line = data.count(b"\n", 0, start) + 1
+            where = f"the PLY header's count {text!r} of element {name!r} (line {line})"
+            try:
+                count = int(text)
+            except ValueError:
+                raise MeshError(f"{where} is not a whole number") from None
+            if count < 0:
+                raise MeshError(f"{where} is negative")
+            if count > 3 * max_faces:
+                raise MeshError(f"declares {count} {name} elements; the limit is {3 * max_faces}")
+            elements[name] = (count, {})
+        elif "property" in words[0]:
+            if not elements or len(words) < 2:
+                return None
+            if len(words) == 3:
+                if words[1] not in _PLY_TYPES:
+                    return None
+                elements[name][1][words[2]] = (words[1], None)
+            elif "list" in words[1]:
+                if len(words) != 5 or words[2] not in _PLY_TYPES or words[3] not in _PLY_TYPES:
+                    return None
+                elements[name][1][words[4]] = (words[2], words[3])
+    return None  # no end_header: trimesh reads past the end and refuses it
+
+
+def _header_text(line: bytes) -> str:
+    """A header line as trimesh decodes it (UTF-8; :func:`_text_as_utf8` gives
+    it a Latin-1 header as UTF-8)."""
+    try:
+        return line.decode("utf-8")
+    except UnicodeDecodeError:
+        return line.decode("latin-1")
 
 
 def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
     """At least the triangles trimesh makes of a PLY's ``face`` element, from
-    its header and the list counts in its body, before trimesh parses it.
+    its header (:func:`_ply_header`) and the list counts in its body, before
+    trimesh parses it.
 
-    Every element count is held to the limit first (a header may claim 10^12
-    faces over a body of a few bytes).  trimesh turns an n-gon into n - 2
-    triangles.  A binary file's lists all have the first face's length
-    (trimesh reads that one and assumes it for every face), so the bound is
-    exact: the faces the body holds times n - 2.  An ASCII file's face lines
-    are read one by one (:func:`_line_polygons`)."""
-    end = data.find(b"end_header", 0, 65536)
-    header = data[:end if end >= 0 else 65536]
-    for name, count in re.findall(rb"element\s+(\w+)\s+(\d+)", header):
-        if int(count) > 3 * max_faces:
-            raise MeshError(f"declares {int(count)} {name.decode(errors='replace')} elements; "
-                            f"the limit is {3 * max_faces}")
-    if end < 0:
-        return 0  # trimesh refuses it
-    body = data.find(b"\n", end) + 1 or len(data)
-    elements = []  # (name, count, [(type of a scalar or None, (count type, item type) of a list, name)])
-    for line in header.decode("latin-1").splitlines():
-        words = line.split()
-        if len(words) == 3 and words[0] == "element":
-            if not (words[2].isascii() and words[2].isdigit()):  # str.isdigit takes "²" (header read as Latin-1)
-                return 0  # trimesh refuses it
-            elements.append((words[1], int(words[2]), []))
-        elif elements and len(words) == 3 and words[0] == "property":
-            elements[-1][2].append((words[1], None, words[2]))
-        elif elements and len(words) == 5 and words[0] == "property" and words[1] == "list":
-            elements[-1][2].append((None, (words[2], words[3]), words[4]))
-    names = [e[0] for e in elements]
-    if "face" not in names:
+    trimesh turns an n-gon into n - 2 triangles.  A binary file's lists all
+    have the first face's length (trimesh reads that one and assumes it for
+    every face), so the bound is exact: the faces the body holds times n - 2.
+    An ASCII file's face lines are read one by one (:func:`_line_polygons`),
+    the values before the index list (a flag, a uv list) stepped over."""
+    header = _ply_header(data, max_faces)
+    if header is None:
         return 0
-    face = names.index("face")
-    lists = [i for i, (scalar, listed, name) in enumerate(elements[face][2]) if listed is not None]
-    if not lists:
+    elements, ascii_body, big, body = header
+    if "face" not in elements or not elements["face"][0]:
         return 0
-    named = [i for i in lists if elements[face][2][i][2] in ("vertex_indices", "vertex_index")]
-    indices = (named or lists)[0]  # the list trimesh takes as the faces
-    encoding = (header.split(b"\n", 2)[1:2] or [b""])[0].lower()
-    if b"ascii" not in encoding:  # binary: walk the elements as trimesh does
-        order = ">" if b"big" in encoding else "<"
-        position = body
-        for index, (_, count, properties) in enumerate(elements[:face + 1]):
-            size = 0
-            for number, (scalar, listed, _) in enumerate(properties):
-                if scalar is not None:
-                    size += _PLY_TYPES.get(scalar, 0)
-                    continue
-                count_size, item_size = _PLY_TYPES.get(listed[0], 0), _PLY_TYPES.get(listed[1], 0)
-                raw = data[position + size:position + size + count_size]
-                if not count_size or len(raw) < count_size:
-                    return 0  # trimesh cannot read it either
-                length = int(np.frombuffer(raw, dtype=f"{order}{'iu'[listed[0].startswith('u')]}{count_size}")[0])
-                if index == face and number == indices:
-                    polygon = length
-                size += count_size + max(length, 0) * item_size
-            if index == face:
-                held = (len(data) - position) // size if size > 0 else 0
-                return min(count, held) * max(polygon - 2, 0)
-            position += count * size
-        return 0
-    skip = sum(e[1] for e in elements[:face])
-    if not data.isascii():  # trimesh splits the body's text at U+2028, U+2029 and NEL too
-        data = data[:body] + _split_as_str(data[body:], blanks=False)
-    if indices != 0:
-        return 0
-    return _line_polygons(data, body, skip, elements[face][1], blank_lines_count=True)
+    count, properties = elements["face"]
+    names = list(properties)
+    if ascii_body:  # trimesh takes vertex_index, else vertex_indices
+        indices = next((n for n in ("vertex_index", "vertex_indices") if n in properties), None)
+    else:  # the one property, else the first of those names
+        indices = names[0] if len(names) == 1 else next(
+            (n for n in names if n in ("vertex_index", "vertex_indices")), None)
+    if indices is None or properties[indices][1] is None:
+        return 0  # trimesh finds no faces, or refuses them
+    if ascii_body:
+        in_order = list(elements)
+        skip = sum(elements[name][0] for name in in_order[:in_order.index("face")])
+        if not data.isascii():  # trimesh splits the body's text at U+2028, U+2029 and NEL too
+            data = data[:body] + _split_as_str(data[body:], blanks=False)
+        before = tuple(properties[n][1] is not None for n in names[:names.index(indices)])
+        lists = sum(item is not None for _, item in properties.values())
+        return _line_polygons(data, body, skip, count, blank_lines_count=True, before=before,
+                              first_applies=lists <= 1)
+    order = ">" if big else "<"
+    position = body
+    for name, (element_count, element_properties) in elements.items():  # walk the elements as trimesh does
+        size = 0
+        for key, (scalar, item) in element_properties.items():
+            if item is None:
+                size += int(_PLY_TYPES[scalar][1])
+                continue
+            count_type = np.dtype(order + _PLY_TYPES[scalar])
+            raw = data[position + size:position + size + count_type.itemsize]
+            if count_type.kind == "f" or len(raw) < count_type.itemsize:
+                return 0  # trimesh cannot read it either
+            length = int(np.frombuffer(raw, dtype=count_type)[0])
+            if name == "face" and key == indices:
+                polygon = length
+            size += count_type.itemsize + max(length, 0) * int(_PLY_TYPES[item][1])
+        if name == "face":
+            held = (len(data) - position) // size if size > 0 else 0
+            return min(count, held) * max(polygon - 2, 0)
+        position += element_count * size
+    return 0
 
 
 def _off_triangle_bound(data: bytes, max_faces: int) -> int:
@@ -396,13 +464,17 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
     digits, for which this is exact.
 
     ``first_applies`` (a PLY face with one list at most): trimesh applies
-    the first line's count to every line when they all hold as many values,
-    so each line counts the larger of its own count and the first's."""
+    the first line's count to every line when they all hold as many values
+    (a first line of 2000 indices made every later ``3 ...`` line of as
+    many a 1998-triangle fan: 2,047 counted of 99,900 built), so the lines'
+    values are counted when their counts differ, and if they are all as
+    many, each line counts the larger of its own count and the first's."""
     a = np.frombuffer(data, dtype=np.uint8)
     n = a.size
     seen = total = 0
     chunk_start = start
-    first = None  # the first face line's count, once read (first_applies)
+    first = None  # the first face line's count and values, once read (first_applies)
+    same_width, as_first = True, 0  # whether every line has the first's values so far; the total if so
     only_newlines = _only_newlines(data, start)
     while chunk_start < n and seen < skip + count:
         chunk_end = min(chunk_start + _LINE_CHUNK, n)
@@ -441,15 +513,28 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
         value, exact = _read_counts(a, at, ends)
         exact &= stepped
         value = np.where(exact, value, _UNREAD)
-        if first_applies:
-            if first is None:
-                first = int(value[0])
-            value = np.maximum(value, first)
         # values the line can list after its count (one character and one blank each); a line
         # whose earlier lists could not be stepped over: every value it holds
         room = np.where(stepped, (ends - at + 1) // 2 - 1, (ends - lead + 1) // 2)
         total += int(np.maximum(np.minimum(value, room) - 2, 0).sum())
-    return total
+        if first_applies:
+            if first is None:
+                first, width = int(value[0]), int(_value_counts(a, lead[:1], ends[:1])[0])
+            if same_width and (value != first).any():  # else both ways count the same: no need to know
+                same_width = bool((_value_counts(a, lead, ends) == width).all())
+            if same_width:
+                as_first += int(np.maximum(np.minimum(np.maximum(value, first), room) - 2, 0).sum())
+    return as_first if first_applies and same_width else total
+
+
+def _value_counts(a: np.ndarray, lead: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """The number of values (words) of each line from ``lead`` to ``ends``."""
+    low, high = int(lead[0]), int(ends[-1])
+    separator = _SEPARATOR[a[low:high]]
+    first = ~separator
+    first[1:] &= separator[:-1]
+    values = np.flatnonzero(first) + low
+    return np.searchsorted(values, ends) - np.searchsorted(values, lead)
 
 
 _UNREAD = np.int64(1) << 62  # a count not read: the line lists all it can
@@ -979,11 +1064,28 @@ def _text_as_utf8(data: bytes, ext: str) -> bytes:
         binary = len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data)
         return data if binary else utf8(data)
     if ext == "ply":
-        end = data.find(b"end_header")
-        if end >= 0:
-            end = data.find(b"\n", end) + 1 or len(data)
+        end = _ply_header_end(data)
+        if end is not None:
             return utf8(data[:end]) + data[end:]
     return data
+
+
+def _ply_header_end(data: bytes) -> int | None:
+    """Where a PLY's body starts as trimesh reads the header: after the first
+    line from the third holding the word ``end_header`` (:func:`_ply_header`)."""
+    second = data.find(b"\n", data.find(b"\n") + 1)
+    position = second + 1
+    while second >= 0:
+        at = data.find(b"end_header", position)
+        if at < 0:
+            return None
+        start = data.rfind(b"\n", 0, at) + 1
+        end = data.find(b"\n", at)
+        end = len(data) if end < 0 else end
+        if "end_header" in _header_text(data[start:end]).split():
+            return min(end + 1, len(data))
+        position = end + 1
+    return None
 
 
 def mesh_triangles(mesh: Mesh) -> dict:
