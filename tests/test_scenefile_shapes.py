@@ -766,3 +766,52 @@ def test_ply_header_counts_trimesh_would_not_read_as_counts_are_refused(tmp_path
     scene = mesh_scene(tmp_path, "bad.ply", data=_square_ply(vertices, faces))
     message = refused(scene)
     assert message == f"{scene}: meshes[0].file: {tmp_path / 'bad.ply'}: {problem}", message
+
+
+OBJ_SQUARE = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+
+
+def _obj_fan(separator: bytes) -> bytes:
+    return b"f " + separator.join(b"%d" % (1 + i % 4) for i in range(2000)) + b"\n"
+
+
+@pytest.mark.parametrize("name,data", [
+    ("vertical tabs", OBJ_SQUARE + _obj_fan(b"\v") * 3), ("form feeds", OBJ_SQUARE + _obj_fan(b"\f") * 3),
+    ("lone CRs", OBJ_SQUARE + _obj_fan(b"\r") * 3),
+    ("NBSP, mixed", OBJ_SQUARE + b"f 1 2 3\n" + _obj_fan("\u00a0".encode()) * 3),  # str.split's, in trimesh's loop
+    ("U+3000, mixed", OBJ_SQUARE + b"f 1 2 3 4\n" + _obj_fan("\u3000".encode()) * 3),
+    ("vt lines", OBJ_SQUARE + b"vt 0\n" * 3000 + _obj_fan(b"\v") * 3),  # each took 2 off the count
+    ("the first line's words", OBJ_SQUARE + b"vt 0 0\nvt 1 1\nvt 1 0\nvt 0 1\n" + b"f 1 2 3 4 1 2\n"
+     + b"f 1/2 3/4 1/2\n" * 100),  # as many values a line: trimesh fans each as the first (6 words)
+    ("continued", OBJ_SQUARE + (b"f 1 " + b"\\\n".join(b" %d" % (1 + i % 4) for i in range(2000)) + b"\n") * 3),
+])
+def test_obj_faces_are_counted_as_trimesh_splits_them(monkeypatch, name, data):
+    """The OBJ count took spaces and tabs alone for separators and subtracted
+    3 for every ``v`` line, 2 for every ``vt``: faces whose indices other
+    whitespace parts (2 counted of a 1998-triangle fan), or a file of short
+    ``vt`` lines, counted a few triangles of thousands built."""
+    built = _built(data, "obj")
+    assert built >= 100, built
+    for chunk in (7, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._obj_triangle_bound(data) == built, name
+
+
+def test_obj_counts_stay_exact_for_exported_files():
+    import io
+
+    rng = np.random.default_rng(2)
+    mesh = trimesh.creation.icosphere(2)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=rng.random((len(mesh.vertices), 2)))
+    textured = trimesh.exchange.obj.export_obj(mesh, include_normals=True, include_texture=True).encode()
+    mixed = OBJ_SQUARE + b"vt 0 0\n" * 4 + b"vn 0 0 1\n" + b"f 1/1/1 2/2/1 3/3/1\nf 1/1/1 2/2/1 3/3/1 4/4/1\n" * 50
+    for data in (textured, mixed, textured.replace(b"\n", b"\r\n")):
+        built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(data), file_type="obj",
+                                                              process=False).geometry.values())
+        assert mesh_files._obj_triangle_bound(data) == built
+
+
+@pytest.mark.parametrize("separator", [b"\v", b"\f", b"\r", b"\x1c"])
+def test_an_obj_zero_index_after_other_whitespace_is_found(separator):
+    """trimesh parts a face's words at these too and reads a 0 as vertex 1."""
+    assert mesh_files._obj_zero_index_line(OBJ_SQUARE + b"f 1" + separator + b"0" + separator + b"2\n") == 5
