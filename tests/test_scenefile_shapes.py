@@ -815,3 +815,22 @@ def test_obj_counts_stay_exact_for_exported_files():
 def test_an_obj_zero_index_after_other_whitespace_is_found(separator):
     """trimesh parts a face's words at these too and reads a 0 as vertex 1."""
     assert mesh_files._obj_zero_index_line(OBJ_SQUARE + b"f 1" + separator + b"0" + separator + b"2\n") == 5
+
+
+@pytest.mark.parametrize("kind", ["meshes", "media"])
+def test_a_nul_byte_in_a_mesh_file_name_is_one_message(tmp_path, kind):
+    """os.stat raised ValueError on it (the memory check before reading): a traceback."""
+    import subprocess
+    import sys
+
+    spec = '{file: "a\\0b.obj", material: m}' if kind == "meshes" else \
+        '{boundary: {mesh: {file: "a\\0b.obj"}}, density: 1}'
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(f"materials: {{m: {{type: lambertian}}}}\n{kind}:\n  - {spec}\n")
+    out = tmp_path / "out.png"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", str(scene), "-o", str(out), "--width", "8",
+                        "--height", "8", "--spp", "1"], capture_output=True, text=True, timeout=300)
+    where = "meshes[0].file" if kind == "meshes" else "media[0].boundary.mesh.file"
+    assert r.returncode == 2 and not out.exists(), r.stderr
+    assert r.stderr.strip().splitlines() == [f"wavefront: error: {scene}: {where}: a file name cannot hold a NUL "
+                                             "byte, got 'a\\x00b.obj'"], r.stderr

@@ -51,7 +51,7 @@ from .memory import LOAD_BYTES_PER_FILE_BYTE, MemoryBudgetError, check_budget, c
 from .textures import image_load_bytes, images_shared
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
-from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
+from .validation import SceneError, SceneWarning, YAML11Number, describe, file_name, join, string
 
 __all__ = ["MAX_DEPTH", "MAX_PIXELS", "MAX_SAMPLES_PER_PIXEL", "MAX_SEED", "SceneError", "SceneWarning",
            "load_scene", "read_yaml", "scene_from_dict"]
@@ -854,7 +854,7 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None, *, 
         spec = _mapping(source, spec, path, _MESH_KEYS, {"file", "material"})
         _material_name(source, path, spec)
         try:  # what can be checked before the file is read, by the Mesh's own rules
-            name = string(Mesh, spec["file"], "file")
+            name = file_name(Mesh, spec["file"], "file")
             mesh_fields(Mesh, spec)
         except SceneError as e:
             raise e.within(source, path) from None
@@ -946,7 +946,7 @@ def _read_mesh_file(source: str, where: str, file: str, memory: int | None, max_
 def _boundary_mesh(source: str, where: str, spec: dict, base: str, memory: int | None, max_faces: int) -> Mesh:
     """A medium's mesh boundary, read as :func:`_meshes` reads a mesh."""
     try:
-        name = string(Mesh, spec["file"], "file")
+        name = file_name(Mesh, spec["file"], "file")
         mesh_fields(Mesh, {"material": _BOUNDARY_MATERIAL, "transform": spec.get("transform")})
     except SceneError as e:
         raise e.within(source, where) from None
