@@ -784,6 +784,8 @@ def _obj_fan(separator: bytes) -> bytes:
     ("the first line's words", OBJ_SQUARE + b"vt 0 0\nvt 1 1\nvt 1 0\nvt 0 1\n" + b"f 1 2 3 4 1 2\n"
      + b"f 1/2 3/4 1/2\n" * 100),  # as many values a line: trimesh fans each as the first (6 words)
     ("continued", OBJ_SQUARE + (b"f 1 " + b"\\\n".join(b" %d" % (1 + i % 4) for i in range(2000)) + b"\n") * 3),
+    # joined, 'f\\' then '3 3 2 1' is 'f3 3 2 1': four vertices (found by fuzzing: 5 counted of 6)
+    ("continued after the f", OBJ_SQUARE + b"f 3 1 3 2\nf\\\n3 3 2 1\nf 2 2 4 4\n" * 50),
 ])
 def test_obj_faces_are_counted_as_trimesh_splits_them(monkeypatch, name, data):
     """The OBJ count took spaces and tabs alone for separators and subtracted

@@ -799,13 +799,15 @@ def _obj_face_triangles(data: bytes, most: int | None = None) -> tuple[int, bool
 
 def _counts_between(a: np.ndarray, lead: np.ndarray, ends: np.ndarray, end_table: np.ndarray) -> np.ndarray:
     """The number of runs of bytes not in ``end_table`` on each line from
-    ``lead`` to ``ends`` (sorted, apart)."""
+    ``lead`` to ``ends`` (sorted, apart), one starting at ``lead`` itself too."""
     low, high = int(lead[0]), int(ends[-1])
     if high <= low:
         return np.zeros(lead.size, dtype=np.int64)
     parting = end_table[a[low:high]]
     first = ~parting
     first[1:] &= parting[:-1]
+    inside = lead < high
+    first[lead[inside] - low] = ~parting[lead[inside] - low]  # a word right after the 'f' (a line 'f\\' continued)
     del parting
     starts = np.flatnonzero(first) + low
     del first
