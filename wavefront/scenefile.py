@@ -221,6 +221,18 @@ class _OverBudget(Exception):
     """The document holds more values than the memory budget has room for."""
 
 
+def _unreadable_number(text: str, e: ValueError) -> str:
+    """Why a number cannot be read, for a message: Python's own words for an
+    integer past its digit limit ended in advice to call
+    sys.set_int_max_str_digits(), which a scene's author cannot."""
+    shown = repr(text[:40]) + ("..." if len(text) > 40 else "")
+    if "Exceeds the limit" in str(e):
+        digits = sum(c.isdigit() for c in text)
+        return (f"cannot read {shown}: an integer of {digits:,} digits (at most "
+                f"{sys.get_int_max_str_digits():,} can be read)")
+    return f"cannot read {shown}: {e}"
+
+
 class _Builder:
     """Plain Python values from a parser's events (one document).
 
@@ -304,7 +316,7 @@ class _Builder:
                 try:  # every tag the resolver gives has a constructor
                     value = _CONSTRUCT[self.resolve(ScalarNode, text, _PLAIN)](text)
                 except ValueError as e:  # an integer of more than 4300 digits
-                    raise _Problem(f"cannot read {text[:40]!r}: {e}", event.start_mark) from None
+                    raise _Problem(_unreadable_number(text, e), event.start_mark) from None
                 if len(self.cache) < _CACHE_LIMIT:
                     self.cache[text] = value
         elif tag is None or tag == "!":  # quoted, or the non-specific tag: text
@@ -326,7 +338,7 @@ class _Builder:
         try:
             return make(text)
         except ValueError as e:  # an integer of more than 4300 digits
-            raise _Problem(f"cannot read {text[:40]!r}: {e}", event.start_mark) from None
+            raise _Problem(_unreadable_number(text, e), event.start_mark) from None
 
     def sequence(self, depth: int) -> list:
         items: list = []
