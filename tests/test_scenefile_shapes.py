@@ -836,3 +836,16 @@ def test_a_nul_byte_in_a_mesh_file_name_is_one_message(tmp_path, kind):
     assert r.returncode == 2 and not out.exists(), r.stderr
     assert r.stderr.strip().splitlines() == [f"wavefront: error: {scene}: {where}: a file name cannot hold a NUL "
                                              "byte, got 'a\\x00b.obj'"], r.stderr
+
+
+@pytest.mark.parametrize("before,after", [(b"\n" * 100_000, b""), (b" " * 100_000, b""), (b"x" * 100_000, b""),
+                                          (b"", b"\n" * 100_000)])
+def test_an_off_header_is_found_however_far_in(monkeypatch, before, after):
+    """trimesh splits at the first OFF however far in, and takes the first
+    line with content after it for the counts; looked for in the first 64
+    KiB only, 100 KB of blank lines before or after it counted 0 of 99,900."""
+    data = before + b"OFF" + after + b"\n4 50 0\n" + b"".join(b"%d %d %d\n" % v for v in SQUARE) + \
+        (b"2000 " + FAN + b"\n") * 50
+    built = _built(data, "off")
+    assert built == 50 * 1998
+    assert mesh_files._off_triangle_bound(data, 10**6) == built
