@@ -639,6 +639,8 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
             data = f.read(max_bytes + 1)  # a file growing after the stat is still bounded
     except OSError as e:
         raise MeshError(f"cannot read: {e.strerror or e}") from None
+    except MeshError:
+        raise
     except ValueError:  # os.stat of a name holding a NUL byte (Mesh.read; the scene loader refuses it first)
         raise MeshError("cannot read: a file name cannot hold a NUL byte") from None
     if len(data) > max_bytes:
