@@ -849,3 +849,24 @@ def test_an_off_header_is_found_however_far_in(monkeypatch, before, after):
     built = _built(data, "off")
     assert built == 50 * 1998
     assert mesh_files._off_triangle_bound(data, 10**6) == built
+
+
+@pytest.mark.parametrize("doc,problem", [
+    ({"meshes": [{"primitives": [{"attributes": {"POSITION": 5}}]}]},
+     "meshes[0].primitives[0].attributes.POSITION is 5, but the file has 0 accessors"),
+    ({"accessors": [{"count": 3, "type": "VEC3", "componentType": 5126}],
+      "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": "0"}]}]},
+     "meshes[0].primitives[0].indices is \"0\", but the file has 1 accessors"),
+    ({"accessors": [{"bufferView": 2, "count": 3, "type": "VEC3", "componentType": 5126}],
+      "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}]},
+     "accessors[0].bufferView is 2, but the file has 0 bufferViews"),
+])
+def test_a_gltf_naming_what_it_does_not_have_is_refused_by_its_json_path(tmp_path, doc, problem):
+    """trimesh's message for the first was "cannot access local variable
+    'access' where it is not associated with a value"."""
+    import json
+
+    doc = {"asset": {"version": "2.0"}, "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}], **doc}
+    scene = mesh_scene(tmp_path, "bad.gltf", data=json.dumps(doc).encode())
+    message = refused(scene)
+    assert message == f"{scene}: meshes[0].file: {tmp_path / 'bad.gltf'}: {problem}", message

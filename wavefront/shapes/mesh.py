@@ -666,6 +666,7 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     options = {}
     if ext in ("glb", "gltf"):  # instances multiply a small file's triangles: counted before trimesh builds them
         doc = _gltf_document(data, ext)
+        _gltf_references(doc)
         declared = _gltf_triangles(doc)
         if declared > max_faces:
             raise MeshError(f"declares {declared} triangles (meshes and their instances); the limit is {max_faces}")
@@ -1055,6 +1056,47 @@ def _gltf_document(data: bytes, ext: str) -> dict | None:
     except (ValueError, RecursionError):
         return None
     return doc if isinstance(doc, dict) else None
+
+
+def _gltf_references(doc: dict | None) -> None:
+    """Refuse a glTF whose meshes name an accessor it does not have, or whose
+    accessors name a buffer view it does not have, naming the JSON path:
+    trimesh's own message for ``"POSITION": 5`` of a file without accessors
+    was "cannot access local variable 'access' where it is not associated
+    with a value"."""
+    if not isinstance(doc, dict):
+        return
+
+    def items(key):
+        value = doc.get(key, [])
+        return value if isinstance(value, list) else []
+
+    def check(index, path: str, key: str) -> None:
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(items(key)):
+            raise MeshError(f"{path} is {json_text(index)}, but the file has {len(items(key))} {key}")
+
+    def json_text(value) -> str:
+        import json
+        text = json.dumps(value)
+        return text if len(text) <= 40 else text[:40] + "..."
+
+    for m, mesh in enumerate(items("meshes")):
+        primitives = mesh.get("primitives", []) if isinstance(mesh, dict) else []
+        for p, primitive in enumerate(primitives if isinstance(primitives, list) else []):
+            if not isinstance(primitive, dict):
+                continue
+            where = f"meshes[{m}].primitives[{p}]"
+            attributes = primitive.get("attributes", {})
+            for name, index in (attributes.items() if isinstance(attributes, dict) else ()):
+                check(index, f"{where}.attributes.{name}", "accessors")
+            if "indices" in primitive:
+                check(primitive["indices"], f"{where}.indices", "accessors")
+    for a, accessor in enumerate(items("accessors")):
+        if isinstance(accessor, dict) and "bufferView" in accessor:
+            check(accessor["bufferView"], f"accessors[{a}].bufferView", "bufferViews")
+    for v, view in enumerate(items("bufferViews")):
+        if isinstance(view, dict) and "buffer" in view:
+            check(view["buffer"], f"bufferViews[{v}].buffer", "buffers")
 
 
 def _gltf_triangles(doc: dict | None) -> int:
