@@ -264,3 +264,11 @@ def test_a_png_is_written_without_importing_colour_science(tmp_path):
     import imageio.v3 as iio
 
     assert (iio.imread(tmp_path / "x.png") == 188).all()  # rint(255 * 0.735357)
+
+
+def test_an_empty_output_path_is_named_as_empty(tmp_path):
+    """``-o ''`` read "wavefront: error: : unknown output extension '(none)'"."""
+    r = run("render", SCENES / "three_spheres.yaml", "-o", "", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "wavefront: error: the output path is empty; expected a file name ending in one of: .png, .exr, .npy"], r.stderr
+    assert not list(tmp_path.iterdir())

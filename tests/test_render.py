@@ -1,11 +1,14 @@
 """Determinism and the render driver."""
 
 import dataclasses
+import sys
 
 import numpy as np
 import pytest
 
 from wavefront import Camera, Lambertian, Scene, Sphere, load_scene, render, render_scene
+from wavefront.memory import MemoryBudgetError, MiB
+from wavefront.render import plan_memory
 from wavefront.units import PASS_SAMPLES, plan_units
 
 from .test_furnace import SCENES
@@ -330,3 +333,63 @@ def test_a_material_no_shape_uses_changes_nothing(unused):
     with_spare = base.replace(materials={**base.materials, "spare": spare})
     expected = render_scene(base, workers=1).image
     np.testing.assert_array_equal(render_scene(with_spare, workers=1).image, expected)
+
+
+def _refused_sizes(message: str, total_word: str) -> tuple[float, float]:
+    """The total and the budget a refusal states, in bytes."""
+    import re
+
+    def size(text):
+        number, unit = re.fullmatch(r"([\d,.]+) (MiB|bytes)", text).groups()
+        return float(number.replace(",", "")) * (MiB if unit == "MiB" else 1)
+
+    total = re.search(rf"([\d,.]+ (?:MiB|bytes)){total_word}", message)[1]
+    budget = re.search(r"memory budget of ([\d,.]+ (?:MiB|bytes))", message)[1]
+    return size(total), size(budget)
+
+
+@pytest.mark.parametrize("held,need,memory", [
+    (125.3, 10.1, 135.3),  # 135.4 in all over 135.3: both "135 MiB"
+    (100.0, 35.0, 135.0 - 1 / MiB),  # one byte over: "135 MiB ... of 135 MiB"
+    (4.0, 1.04, 5.01),
+])
+def test_a_memory_refusal_never_states_a_total_not_above_its_budget(monkeypatch, held, need, memory):
+    """Rounded alike to whole MiB, a refusal read "135 MiB in all, more than
+    the memory budget of 135 MiB"; the total and the budget now take the
+    decimals (or bytes) that show the one above the other."""
+    from wavefront import memory as memory_module
+
+    monkeypatch.setattr(memory_module, "current_rss", lambda: int(held * MiB))
+    with pytest.raises(MemoryBudgetError) as e:
+        memory_module.refuse_unless_fits(int(memory * MiB), int(need * MiB), "loading x")
+    total, budget = _refused_sizes(str(e.value), " in all")
+    assert total > budget, str(e.value)
+
+
+def test_a_render_refused_just_over_its_budget_says_so():
+    """plan_memory's refusal rounded its peak and the budget alike (whole MiB above 10 MiB)."""
+    common = dict(base=40 * MiB + 12345, film=100 * MiB, per_worker=80 * MiB, output=1 * MiB)
+    low, high = 64 * MiB, 1 << 31  # the least budget that fits
+    while low < high:
+        middle = (low + high) // 2
+        try:
+            plan_memory(middle, 1, None, **common)
+            high = middle
+        except MemoryBudgetError:
+            low = middle + 1
+    with pytest.raises(MemoryBudgetError) as e:
+        plan_memory(low - 1, 1, None, **common)
+    total, budget = _refused_sizes(str(e.value), r" \(")
+    assert total > budget, str(e.value)
+
+
+def test_a_local_cluster_refused_just_over_its_budget_says_so(monkeypatch):
+    from wavefront import distributed
+
+    monkeypatch.setattr(distributed, "current_rss", lambda: 40 * MiB + MiB // 3)
+    monkeypatch.setitem(sys.modules, "dask.distributed", sys.modules.get("dask.distributed") or object())
+    need = distributed.LOCAL_WORKER_BYTES + distributed.LOCAL_CLUSTER_BYTES
+    with pytest.raises(distributed.SchedulerError) as e:
+        distributed.local_worker_count("local:1", 40 * MiB + need + MiB // 10)
+    total, budget = _refused_sizes(str(e.value), " in all")
+    assert total > budget, str(e.value)

@@ -307,3 +307,14 @@ def test_the_number_of_values_is_bounded_apart_from_aliases(monkeypatch):
     with pytest.raises(SceneError) as e:
         read_yaml(b"[" + b"[], " * 1200 + b"]", "v.yaml")
     assert "more than 1000 values" in str(e.value) and "alias" not in str(e.value)
+
+
+@pytest.mark.parametrize("text", [b"spheres: [{radius: " + b"9" * 5000 + b"}]\n",
+                                  b"spheres: [{radius: !!int " + b"9" * 5000 + b"}]\n"])
+def test_an_integer_past_the_digit_limit_is_named_without_python_advice(text):
+    """Python's message ended "use sys.set_int_max_str_digits() to increase the limit"."""
+    with pytest.raises(SceneError) as e:
+        read_yaml(text, "big.yaml")
+    message = str(e.value)
+    assert message.startswith("big.yaml: spheres[0].radius: cannot read '9999") and "sys." not in message, message
+    assert "an integer of 5,000 digits (at most 4,300 can be read)" in message, message

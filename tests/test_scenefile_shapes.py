@@ -629,3 +629,244 @@ def test_a_ply_of_huge_polygons_is_held_to_the_memory_budget_before_parsing(tmp_
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "meshes[0].file: loading" in r.stderr and "fan.ply" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr and not out.exists()
+
+
+def _built(data: bytes, ext: str) -> int:
+    """The triangles trimesh builds of ``data`` (0 if it refuses it)."""
+    import io
+
+    try:
+        with np.errstate(all="ignore"):
+            scene = trimesh.load_scene(io.BytesIO(mesh_files._text_as_utf8(data, ext)), file_type=ext, process=False)
+    except Exception:
+        return 0
+    return sum(len(g.faces) for g in scene.geometry.values() if hasattr(g, "faces"))
+
+
+def _square_off(vertices: bytes, faces: bytes, lines: bytes) -> bytes:
+    return b"OFF\n" + vertices + b" " + faces + b" 0\n" + b"".join(b"%d %d %d\n" % v for v in SQUARE) + lines
+
+
+FAN = b" ".join(b"%d" % (i % 4) for i in range(2000))  # 2000 indices: a fan of 1998 triangles
+
+
+@pytest.mark.parametrize("vertices,faces", [(b"+4", b"50"), (b"0_4", b"50"), ("٤".encode(), b"50"),
+                                            ("４".encode(), b"50"), (b"4", b"+50"), (b"4", b"5_0"),
+                                            (b"4", "٥٠".encode())])
+def test_off_header_counts_are_read_as_trimesh_reads_them(monkeypatch, vertices, faces):
+    """trimesh reads an OFF's counts with int() (np.array(words, dtype=np.int64)):
+    ``+4``, ``0_4`` and other scripts' digits are counts.  Read as ASCII
+    digits only, they counted 0 triangles of the 100 trimesh then built."""
+    data = _square_off(vertices, faces, b"4 0 1 2 3\n" * 50)
+    assert _built(data, "off") == 100
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._off_triangle_bound(data, 10**6) == 100
+
+
+@pytest.mark.parametrize("count", [b"+2000", b"2_000", b"-2", "٢٠٠٠".encode(), "２０００".encode()])
+def test_off_face_counts_trimesh_reads_are_never_counted_short(monkeypatch, count):
+    """A face line's count is int() of its first word to trimesh, and a
+    negative one a slice: ``-2`` takes every index but the last (a fan of
+    1996 triangles from 2000 indices).  Each of these lines counted nothing
+    (``2_000``: 2 of 1998), so 50 of them were 0 counted of ~100,000 built."""
+    data = _square_off(b"4", b"50", (count + b" " + FAN + b"\n") * 50)
+    built = _built(data, "off")
+    assert built >= 50 * 1996
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._off_triangle_bound(data, 10**6) >= built
+
+
+@pytest.mark.parametrize("vertices,faces,problem", [
+    (b"4", b"-7", "the OFF header's face count '-7' is negative"),  # trimesh: a slice from the end, 96 triangles
+    (b"-1", b"50", "the OFF header's vertex count '-1' is negative"),
+    (b"4", b"50.0", "the OFF header's face count '50.0' is not a whole number"),
+    (b"4e0", b"50", "the OFF header's vertex count '4e0' is not a whole number"),
+    (b"4", b"99999999999999999999", "the OFF header's face count '99999999999999999999' is out of range"),
+])
+def test_off_header_counts_trimesh_would_not_read_as_counts_are_refused(tmp_path, vertices, faces, problem):
+    scene = mesh_scene(tmp_path, "bad.off", data=_square_off(vertices, faces, b"4 0 1 2 3\n" * 50))
+    message = refused(scene)
+    assert message == f"{scene}: meshes[0].file: {tmp_path / 'bad.off'}: {problem}", message
+
+
+def test_a_negative_off_count_exits_2_with_one_line_and_no_output(tmp_path):
+    import subprocess
+    import sys
+
+    scene = mesh_scene(tmp_path, "bad.off", data=_square_off(b"4", b"-7", b"4 0 1 2 3\n" * 50))
+    out = tmp_path / "out.png"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", str(scene), "-o", str(out), "--width", "8",
+                        "--height", "8", "--spp", "1"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and not out.exists(), r
+    assert r.stderr.strip().splitlines() == [f"wavefront: error: {scene}: meshes[0].file: {tmp_path / 'bad.off'}: "
+                                             "the OFF header's face count '-7' is negative"], r.stderr
+
+
+def _square_ply(vertices=b"4", faces=b"50", rows=b"4 0 1 2 3\n" * 50, before=b"", properties=None, after=b""):
+    properties = b"property list uchar int vertex_indices\n" if properties is None else properties
+    return (b"ply\nformat ascii 1.0\n" + before + b"element vertex " + vertices
+            + b"\nproperty float x\nproperty float y\nproperty float z\nelement face " + faces + b"\n" + properties
+            + after + b"end_header\n" + b"".join(b"%d %d %d\n" % v for v in SQUARE) + rows)
+
+
+FANS = (b"2000 " + FAN + b"\n") * 50  # 50 fans of 1998 triangles
+
+
+@pytest.mark.parametrize("name,data", [
+    ("+4 vertices", _square_ply(vertices=b"+4")), ("0_4 vertices", _square_ply(vertices=b"0_4")),
+    ("Arabic-Indic face count", _square_ply(faces="٥٠".encode())), ("+50 faces", _square_ply(faces=b"+50")),
+    # the header ends at the word end_header, not at the first substring
+    ("comment xend_header", _square_ply(before=b"comment xend_header\n", rows=FANS)),
+    ("header past 64 KiB", _square_ply(before=b"comment made here\n" * 4000, rows=FANS)),
+    ("a flag before the indices", _square_ply(properties=b"property uchar flags\n"
+                                              b"property list uchar int vertex_indices\n",
+                                              rows=b"".join(b"7 " + line + b"\n" for line in FANS.splitlines()))),
+    ("both index names", _square_ply(properties=b"property list uchar int vertex_indices\n"
+                                     b"property list uchar int vertex_index\n",
+                          rows=b"".join(b"3 0 1 2 " + line + b"\n" for line in FANS.splitlines()))),
+    ("an element named again", _square_ply(before=b"element face 1\nproperty list uchar int vertex_indices\n")),
+    ("first word holds 'element'", _square_ply(faces=b"1", rows=FANS,
+                                               after=b"xelementx face 50\nproperty list uchar int vertex_indices\n")),
+    ("the first line's count for all", _square_ply(rows=b"2000 " + FAN + b"\n" + (b"3 " + FAN + b"\n") * 49)),
+])
+def test_ply_headers_and_counts_are_read_as_trimesh_reads_them(monkeypatch, name, data):
+    """Each of these was a mesh trimesh built while the pre-count counted a
+    fraction or nothing of it (0 or 50 of 99,900; a first line's 2000 indices
+    applied to every line of as many values: 2,047 of 99,900), by reading the
+    header otherwise than trimesh's _parse_header or a face's count at its
+    line's start when a flag precedes it."""
+    built = _built(data, "ply")
+    assert built >= 90
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._ply_triangle_bound(data, 10**6) == built, name
+
+
+@pytest.mark.parametrize("count", [b"+2000", b"-2", b"2e3", b"2000.0", b".2e4"])
+def test_ply_face_counts_not_read_count_all_their_line_lists(monkeypatch, count):
+    """NumPy reads a PLY's values as floats (``2e3`` is 2000) and trimesh
+    takes ``-2`` as a slice of every index but the last: each counted 1
+    triangle of the line's fan (or nothing)."""
+    data = _square_ply(rows=(count + b" " + FAN + b"\n") * 50)
+    built = _built(data, "ply")
+    assert built >= 50 * 1996
+    for chunk in (5, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._ply_triangle_bound(data, 10**6) >= built
+
+
+@pytest.mark.parametrize("vertices,faces,problem", [
+    (b"4.0", b"50", "the PLY header's count '4.0' of element 'vertex' (line 3) is not a whole number"),
+    (b"4", b"5e1", "the PLY header's count '5e1' of element 'face' (line 7) is not a whole number"),
+    (b"-4", b"50", "the PLY header's count '-4' of element 'vertex' (line 3) is negative"),
+])
+def test_ply_header_counts_trimesh_would_not_read_as_counts_are_refused(tmp_path, vertices, faces, problem):
+    scene = mesh_scene(tmp_path, "bad.ply", data=_square_ply(vertices, faces))
+    message = refused(scene)
+    assert message == f"{scene}: meshes[0].file: {tmp_path / 'bad.ply'}: {problem}", message
+
+
+OBJ_SQUARE = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+
+
+def _obj_fan(separator: bytes) -> bytes:
+    return b"f " + separator.join(b"%d" % (1 + i % 4) for i in range(2000)) + b"\n"
+
+
+@pytest.mark.parametrize("name,data", [
+    ("vertical tabs", OBJ_SQUARE + _obj_fan(b"\v") * 3), ("form feeds", OBJ_SQUARE + _obj_fan(b"\f") * 3),
+    ("lone CRs", OBJ_SQUARE + _obj_fan(b"\r") * 3),
+    ("NBSP, mixed", OBJ_SQUARE + b"f 1 2 3\n" + _obj_fan("\u00a0".encode()) * 3),  # str.split's, in trimesh's loop
+    ("U+3000, mixed", OBJ_SQUARE + b"f 1 2 3 4\n" + _obj_fan("\u3000".encode()) * 3),
+    ("vt lines", OBJ_SQUARE + b"vt 0\n" * 3000 + _obj_fan(b"\v") * 3),  # each took 2 off the count
+    ("the first line's words", OBJ_SQUARE + b"vt 0 0\nvt 1 1\nvt 1 0\nvt 0 1\n" + b"f 1 2 3 4 1 2\n"
+     + b"f 1/2 3/4 1/2\n" * 100),  # as many values a line: trimesh fans each as the first (6 words)
+    ("continued", OBJ_SQUARE + (b"f 1 " + b"\\\n".join(b" %d" % (1 + i % 4) for i in range(2000)) + b"\n") * 3),
+    # joined, 'f\\' then '3 3 2 1' is 'f3 3 2 1': four vertices (found by fuzzing: 5 counted of 6)
+    ("continued after the f", OBJ_SQUARE + b"f 3 1 3 2\nf\\\n3 3 2 1\nf 2 2 4 4\n" * 50),
+])
+def test_obj_faces_are_counted_as_trimesh_splits_them(monkeypatch, name, data):
+    """The OBJ count took spaces and tabs alone for separators and subtracted
+    3 for every ``v`` line, 2 for every ``vt``: faces whose indices other
+    whitespace parts (2 counted of a 1998-triangle fan), or a file of short
+    ``vt`` lines, counted a few triangles of thousands built."""
+    built = _built(data, "obj")
+    assert built >= 100, built
+    for chunk in (7, 1 << 22):
+        monkeypatch.setattr(mesh_files, "_LINE_CHUNK", chunk)
+        assert mesh_files._obj_triangle_bound(data) == built, name
+
+
+def test_obj_counts_stay_exact_for_exported_files():
+    import io
+
+    rng = np.random.default_rng(2)
+    mesh = trimesh.creation.icosphere(2)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=rng.random((len(mesh.vertices), 2)))
+    textured = trimesh.exchange.obj.export_obj(mesh, include_normals=True, include_texture=True).encode()
+    mixed = OBJ_SQUARE + b"vt 0 0\n" * 4 + b"vn 0 0 1\n" + b"f 1/1/1 2/2/1 3/3/1\nf 1/1/1 2/2/1 3/3/1 4/4/1\n" * 50
+    for data in (textured, mixed, textured.replace(b"\n", b"\r\n")):
+        built = sum(len(g.faces) for g in trimesh.load_scene(io.BytesIO(data), file_type="obj",
+                                                              process=False).geometry.values())
+        assert mesh_files._obj_triangle_bound(data) == built
+
+
+@pytest.mark.parametrize("separator", [b"\v", b"\f", b"\r", b"\x1c"])
+def test_an_obj_zero_index_after_other_whitespace_is_found(separator):
+    """trimesh parts a face's words at these too and reads a 0 as vertex 1."""
+    assert mesh_files._obj_zero_index_line(OBJ_SQUARE + b"f 1" + separator + b"0" + separator + b"2\n") == 5
+
+
+@pytest.mark.parametrize("kind", ["meshes", "media"])
+def test_a_nul_byte_in_a_mesh_file_name_is_one_message(tmp_path, kind):
+    """os.stat raised ValueError on it (the memory check before reading): a traceback."""
+    import subprocess
+    import sys
+
+    spec = '{file: "a\\0b.obj", material: m}' if kind == "meshes" else \
+        '{boundary: {mesh: {file: "a\\0b.obj"}}, density: 1}'
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(f"materials: {{m: {{type: lambertian}}}}\n{kind}:\n  - {spec}\n")
+    out = tmp_path / "out.png"
+    r = subprocess.run([sys.executable, "-m", "wavefront", "render", str(scene), "-o", str(out), "--width", "8",
+                        "--height", "8", "--spp", "1"], capture_output=True, text=True, timeout=300)
+    where = "meshes[0].file" if kind == "meshes" else "media[0].boundary.mesh.file"
+    assert r.returncode == 2 and not out.exists(), r.stderr
+    assert r.stderr.strip().splitlines() == [f"wavefront: error: {scene}: {where}: a file name cannot hold a NUL "
+                                             "byte, got 'a\\x00b.obj'"], r.stderr
+
+
+@pytest.mark.parametrize("before,after", [(b"\n" * 100_000, b""), (b" " * 100_000, b""), (b"x" * 100_000, b""),
+                                          (b"", b"\n" * 100_000)])
+def test_an_off_header_is_found_however_far_in(monkeypatch, before, after):
+    """trimesh splits at the first OFF however far in, and takes the first
+    line with content after it for the counts; looked for in the first 64
+    KiB only, 100 KB of blank lines before or after it counted 0 of 99,900."""
+    data = before + b"OFF" + after + b"\n4 50 0\n" + b"".join(b"%d %d %d\n" % v for v in SQUARE) + \
+        (b"2000 " + FAN + b"\n") * 50
+    built = _built(data, "off")
+    assert built == 50 * 1998
+    assert mesh_files._off_triangle_bound(data, 10**6) == built
+
+
+@pytest.mark.parametrize("doc,problem", [
+    ({"meshes": [{"primitives": [{"attributes": {"POSITION": 5}}]}]},
+     "meshes[0].primitives[0].attributes.POSITION is 5, but the file has 0 accessors"),
+    ({"accessors": [{"count": 3, "type": "VEC3", "componentType": 5126}],
+      "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": "0"}]}]},
+     "meshes[0].primitives[0].indices is \"0\", but the file has 1 accessors"),
+    ({"accessors": [{"bufferView": 2, "count": 3, "type": "VEC3", "componentType": 5126}],
+      "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}]},
+     "accessors[0].bufferView is 2, but the file has 0 bufferViews"),
+])
+def test_a_gltf_naming_what_it_does_not_have_is_refused_by_its_json_path(tmp_path, doc, problem):
+    """trimesh's message for the first was "cannot access local variable
+    'access' where it is not associated with a value"."""
+    import json
+
+    doc = {"asset": {"version": "2.0"}, "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}], **doc}
+    scene = mesh_scene(tmp_path, "bad.gltf", data=json.dumps(doc).encode())
+    message = refused(scene)
+    assert message == f"{scene}: meshes[0].file: {tmp_path / 'bad.gltf'}: {problem}", message

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import sys
 
-from .memory import MemoryBudgetError, MiB, current_rss, release_free_memory
+from .memory import MemoryBudgetError, MiB, current_rss, over_budget, release_free_memory
 from .render import (FILM_BYTES_PER_PIXEL, POLL_SECONDS, TASKS_IN_FLIGHT, RenderInterrupted, execute,
                      plan_local_workers, tune_allocator)
 from .sampling import scene_key
@@ -103,7 +103,8 @@ def local_worker_count(scheduler: str, memory: int | None = None) -> int:
                 f"{LOCAL_WORKER_BYTES // MiB} MiB{' each' if n > 1 else ''} and the cluster "
                 f"{LOCAL_CLUSTER_BYTES // MiB} MiB beside the {held / MiB:,.0f} MiB this process holds"
                 f"{' with Dask imported' if importing else ''}: "
-                f"{(held + need) / MiB:,.0f} MiB in all, more than the memory budget of {memory // MiB:,} MiB "
+                f"{over_budget(held + need, memory)[0]} in all, more than the memory budget of "
+                f"{over_budget(held + need, memory)[1]} "
                 "(--memory); " + (f"at most local:{fits}" if fits else "a local cluster does not fit in it"))
     return n
 

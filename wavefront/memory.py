@@ -7,6 +7,7 @@ render (see :mod:`wavefront.render`).
 
 from __future__ import annotations
 
+import math
 import os
 import resource
 
@@ -148,9 +149,32 @@ def refuse_unless_fits(memory: int, need: int, what: str) -> None:
     process's current memory exceed ``memory``."""
     held = current_rss()
     if held + need > memory:
-        raise MemoryBudgetError(f"{what} needs about {need / MiB:,.0f} MiB more than the {held / MiB:,.0f} MiB "
-                                f"this process holds: {(held + need) / MiB:,.0f} MiB in all, more than the "
-                                f"memory budget of {memory / MiB:,.0f} MiB")
+        total, budget = over_budget(held + need, memory)
+        raise MemoryBudgetError(f"{what} needs about {mib(need)} more than the {mib(held)} "
+                                f"this process holds: {total} in all, more than the "
+                                f"memory budget of {budget}")
+
+
+def mib(size: int) -> str:
+    """``size`` in MiB for a message: one decimal below 10 MiB, whole above."""
+    return f"{size / MiB:,.1f} MiB" if size < 10 * MiB else f"{size / MiB:,.0f} MiB"
+
+
+def over_budget(total: int, budget: int) -> tuple[str, str]:
+    """``total`` and ``budget`` in MiB for a message that the one is more than
+    the other: as :func:`mib` gives them if that shows it, else with the
+    fewest decimals (to 3) that do, and at 3 the total rounded up and the
+    budget down.  Rounded alike to whole MiB, a total 0.1 MiB over its budget
+    read "135 MiB in all, more than the memory budget of 135 MiB"."""
+    if total > budget:
+        for digits in range(4):
+            shown = [round(size / MiB, max(digits, size < 10 * MiB)) for size in (total, budget)]
+            if shown[0] > shown[1]:
+                if digits == 0:
+                    return mib(total), mib(budget)
+                return f"{shown[0]:,.{digits}f} MiB", f"{shown[1]:,.{digits}f} MiB"
+        return f"{math.ceil(total / MiB * 1000) / 1000:,.3f} MiB", f"{math.floor(budget / MiB * 1000) / 1000:,.3f} MiB"
+    return mib(total), mib(budget)
 
 
 # The scene loader's peak per byte of YAML, measured with ``benchmarks/bench.py

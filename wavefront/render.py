@@ -32,8 +32,8 @@ import numpy as np
 from .film import CheckpointError, FILM_BYTES_PER_PIXEL, Film, load_checkpoint, save_checkpoint  # noqa: F401 (CheckpointError re-exported)
 from .integrators import STREAMING, TRACERS
 from .memory import (  # noqa: F401 (MemoryBudgetError and the measures are part of this module's API)
-    MemoryBudgetError, check_budget, current_rss, libc, peak_rss, phase_peak, physical_memory, refuse_unless_fits,
-    release_free_memory, reserve_heap)
+    MemoryBudgetError, check_budget, current_rss, libc, over_budget, peak_rss, phase_peak, physical_memory,
+    refuse_unless_fits, release_free_memory, reserve_heap)
 from .output import OutputError, check_output_path
 from .path import HELD_TASKS, TaskStream, TraceStats
 from .sampling import scene_key
@@ -247,8 +247,9 @@ def plan_memory(memory: int, workers: int, chunk_size: int | None, *, base: int,
         if smallest.workers > 1 or lasting:
             results = smallest.workers * smallest.capacity * smallest.result_bytes_per_path
             parts.append(f"finished tasks' results {_mib(results)}")
-    raise MemoryBudgetError(f"the render needs about {_mib(smallest.peak)} ({', '.join(parts)}), "
-                            f"more than the memory budget of {_mib(memory)}")
+    total, budget = over_budget(smallest.peak, memory)
+    raise MemoryBudgetError(f"the render needs about {total} ({', '.join(parts)}), "
+                            f"more than the memory budget of {budget}")
 
 
 def plan_local_workers(scene: Scene, memory: int, workers: int, chunk_size: int | None, *, held: int,

@@ -51,7 +51,7 @@ from .memory import LOAD_BYTES_PER_FILE_BYTE, MemoryBudgetError, check_budget, c
 from .textures import image_load_bytes, images_shared
 from .shapes import mesh as mesh_files
 from .shapes.mesh import mesh_fields
-from .validation import SceneError, SceneWarning, YAML11Number, describe, join, string
+from .validation import SceneError, SceneWarning, YAML11Number, describe, file_name, join, string
 
 __all__ = ["MAX_DEPTH", "MAX_PIXELS", "MAX_SAMPLES_PER_PIXEL", "MAX_SEED", "SceneError", "SceneWarning",
            "load_scene", "read_yaml", "scene_from_dict"]
@@ -221,6 +221,18 @@ class _OverBudget(Exception):
     """The document holds more values than the memory budget has room for."""
 
 
+def _unreadable_number(text: str, e: ValueError) -> str:
+    """Why a number cannot be read, for a message: Python's own words for an
+    integer past its digit limit ended in advice to call
+    sys.set_int_max_str_digits(), which a scene's author cannot."""
+    shown = repr(text[:40]) + ("..." if len(text) > 40 else "")
+    if "Exceeds the limit" in str(e):
+        digits = sum(c.isdigit() for c in text)
+        return (f"cannot read {shown}: an integer of {digits:,} digits (at most "
+                f"{sys.get_int_max_str_digits():,} can be read)")
+    return f"cannot read {shown}: {e}"
+
+
 class _Builder:
     """Plain Python values from a parser's events (one document).
 
@@ -304,7 +316,7 @@ class _Builder:
                 try:  # every tag the resolver gives has a constructor
                     value = _CONSTRUCT[self.resolve(ScalarNode, text, _PLAIN)](text)
                 except ValueError as e:  # an integer of more than 4300 digits
-                    raise _Problem(f"cannot read {text[:40]!r}: {e}", event.start_mark) from None
+                    raise _Problem(_unreadable_number(text, e), event.start_mark) from None
                 if len(self.cache) < _CACHE_LIMIT:
                     self.cache[text] = value
         elif tag is None or tag == "!":  # quoted, or the non-specific tag: text
@@ -326,7 +338,7 @@ class _Builder:
         try:
             return make(text)
         except ValueError as e:  # an integer of more than 4300 digits
-            raise _Problem(f"cannot read {text[:40]!r}: {e}", event.start_mark) from None
+            raise _Problem(_unreadable_number(text, e), event.start_mark) from None
 
     def sequence(self, depth: int) -> list:
         items: list = []
@@ -854,7 +866,7 @@ def _meshes(source: str, docs, defined: set[str], memory: int | None = None, *, 
         spec = _mapping(source, spec, path, _MESH_KEYS, {"file", "material"})
         _material_name(source, path, spec)
         try:  # what can be checked before the file is read, by the Mesh's own rules
-            name = string(Mesh, spec["file"], "file")
+            name = file_name(Mesh, spec["file"], "file")
             mesh_fields(Mesh, spec)
         except SceneError as e:
             raise e.within(source, path) from None
@@ -946,7 +958,7 @@ def _read_mesh_file(source: str, where: str, file: str, memory: int | None, max_
 def _boundary_mesh(source: str, where: str, spec: dict, base: str, memory: int | None, max_faces: int) -> Mesh:
     """A medium's mesh boundary, read as :func:`_meshes` reads a mesh."""
     try:
-        name = string(Mesh, spec["file"], "file")
+        name = file_name(Mesh, spec["file"], "file")
         mesh_fields(Mesh, {"material": _BOUNDARY_MATERIAL, "transform": spec.get("transform")})
     except SceneError as e:
         raise e.within(source, where) from None

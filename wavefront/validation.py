@@ -172,6 +172,15 @@ def string(obj, value, path: str, choices=None) -> str:
     return value
 
 
+def file_name(obj, value, path: str) -> str:
+    """A file's name: a string without a NUL byte, which no file name holds
+    (os.stat raised ValueError on it: a traceback, not a message)."""
+    value = string(obj, value, path)
+    if "\0" in value:
+        fail(obj, path, f"a file name cannot hold a NUL byte, got {value!r}")
+    return value
+
+
 def name(obj, value, path: str) -> str:
     """A material name, in Unicode NFC so that names which look the same are the same."""
     return unicodedata.normalize("NFC", string(obj, value, path))

@@ -136,77 +136,147 @@ def _array(obj, value, path: str, dtype, width: int) -> np.ndarray:
     return a
 
 
-_PLY_TYPES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "int64": 8, "uint64": 8,
-              "float64": 8, "double": 8, "float16": 2}  # bytes of each PLY type (trimesh's table)
+# numpy's code of each PLY type (trimesh's table)
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1", "short": "i2", "ushort": "u2", "int16": "i2",
+              "uint16": "u2", "int": "i4", "uint": "u4", "int32": "i4", "uint32": "u4", "float": "f4", "float32": "f4",
+              "int64": "i8", "uint64": "u8", "float64": "f8", "double": "f8", "float16": "f2"}
+# Lines of a PLY header trimesh acts on contain one of these (its other lines are comments).
+_PLY_HEADER_WORDS = re.compile(rb"element|property|end_header")
+
+
+def _ply_header(data: bytes, max_faces: int) -> tuple[dict, bool, bool, int] | None:
+    """A PLY header as trimesh's ``_parse_header`` reads it: ``(elements,
+    ascii, big_endian, body)``, elements ``{name: (count, {property: (type,
+    None) or (count type, item type) for a list})}`` in its order, ``body``
+    the offset after the header; None where trimesh refuses the header.
+
+    Its rules, which the pre-count read otherwise (each a file whose faces
+    it counted short, 0 of ~100,000 built): lines end at LF alone (readline);
+    the second line is the format whatever it says; the header ends at the
+    first line holding the word ``end_header`` (``comment xend_header`` is
+    not one; a substring search ended it there) however far in (not only in
+    the first 64 KiB); a line is an element when its first word contains
+    ``element`` and a property when it contains ``property``; an element
+    named again replaces the first but keeps its place (a dict); a count is
+    Python's int() of its word (``+50``, ``5_0`` and other scripts' digits
+    are counts).  Refused here, with the line and the word: a count int()
+    does not read (``3.0``, ``3e0``: trimesh refuses the file too) and a
+    negative count (trimesh takes it as a slice of the body's lines, which
+    can step back over another element's); every count is held to the limit
+    (a header may claim 10^12 faces over a body of a few bytes)."""
+    first = data.find(b"\n")
+    if first < 0 or b"ply" not in data[:first].lower():
+        return None
+    second = data.find(b"\n", first + 1)
+    if second < 0:
+        return None
+    encoding = _header_text(data[first + 1:second]).strip().lower()
+    elements, name, position = {}, None, second + 1
+    for match in _PLY_HEADER_WORDS.finditer(data, position):
+        if match.start() < position:
+            continue  # on a line already read
+        start = data.rfind(b"\n", 0, match.start()) + 1
+        end = data.find(b"\n", match.start())
+        end = len(data) if end < 0 else end
+        position = end + 1
+        words = _header_text(data[start:end]).split()
+        if "end_header" in words:
+            return elements, "ascii" in encoding, "big" in encoding, min(position, len(data))
+        if not words:
+            continue
+        if "element" in words[0]:
+            if len(words) != 3:
+                return None
+            name, text = words[1], words[2]
+            line = data.count(b"\n", 0, start) + 1
+            where = f"the PLY header's count {text!r} of element {name!r} (line {line})"
+            try:
+                count = int(text)
+            except ValueError:
+                raise MeshError(f"{where} is not a whole number") from None
+            if count < 0:
+                raise MeshError(f"{where} is negative")
+            if count > 3 * max_faces:
+                raise MeshError(f"declares {count} {name} elements; the limit is {3 * max_faces}")
+            elements[name] = (count, {})
+        elif "property" in words[0]:
+            if not elements or len(words) < 2:
+                return None
+            if len(words) == 3:
+                if words[1] not in _PLY_TYPES:
+                    return None
+                elements[name][1][words[2]] = (words[1], None)
+            elif "list" in words[1]:
+                if len(words) != 5 or words[2] not in _PLY_TYPES or words[3] not in _PLY_TYPES:
+                    return None
+                elements[name][1][words[4]] = (words[2], words[3])
+    return None  # no end_header: trimesh reads past the end and refuses it
+
+
+def _header_text(line: bytes) -> str:
+    """A header line as trimesh decodes it (UTF-8; :func:`_text_as_utf8` gives
+    it a Latin-1 header as UTF-8)."""
+    try:
+        return line.decode("utf-8")
+    except UnicodeDecodeError:
+        return line.decode("latin-1")
 
 
 def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
     """At least the triangles trimesh makes of a PLY's ``face`` element, from
-    its header and the list counts in its body, before trimesh parses it.
+    its header (:func:`_ply_header`) and the list counts in its body, before
+    trimesh parses it.
 
-    Every element count is held to the limit first (a header may claim 10^12
-    faces over a body of a few bytes).  trimesh turns an n-gon into n - 2
-    triangles.  A binary file's lists all have the first face's length
-    (trimesh reads that one and assumes it for every face), so the bound is
-    exact: the faces the body holds times n - 2.  An ASCII file's face lines
-    are read one by one (:func:`_line_polygons`)."""
-    end = data.find(b"end_header", 0, 65536)
-    header = data[:end if end >= 0 else 65536]
-    for name, count in re.findall(rb"element\s+(\w+)\s+(\d+)", header):
-        if int(count) > 3 * max_faces:
-            raise MeshError(f"declares {int(count)} {name.decode(errors='replace')} elements; "
-                            f"the limit is {3 * max_faces}")
-    if end < 0:
-        return 0  # trimesh refuses it
-    body = data.find(b"\n", end) + 1 or len(data)
-    elements = []  # (name, count, [(type of a scalar or None, (count type, item type) of a list, name)])
-    for line in header.decode("latin-1").splitlines():
-        words = line.split()
-        if len(words) == 3 and words[0] == "element":
-            if not (words[2].isascii() and words[2].isdigit()):  # str.isdigit takes "²" (header read as Latin-1)
-                return 0  # trimesh refuses it
-            elements.append((words[1], int(words[2]), []))
-        elif elements and len(words) == 3 and words[0] == "property":
-            elements[-1][2].append((words[1], None, words[2]))
-        elif elements and len(words) == 5 and words[0] == "property" and words[1] == "list":
-            elements[-1][2].append((None, (words[2], words[3]), words[4]))
-    names = [e[0] for e in elements]
-    if "face" not in names:
+    trimesh turns an n-gon into n - 2 triangles.  A binary file's lists all
+    have the first face's length (trimesh reads that one and assumes it for
+    every face), so the bound is exact: the faces the body holds times n - 2.
+    An ASCII file's face lines are read one by one (:func:`_line_polygons`),
+    the values before the index list (a flag, a uv list) stepped over."""
+    header = _ply_header(data, max_faces)
+    if header is None:
         return 0
-    face = names.index("face")
-    lists = [i for i, (scalar, listed, name) in enumerate(elements[face][2]) if listed is not None]
-    if not lists:
+    elements, ascii_body, big, body = header
+    if "face" not in elements or not elements["face"][0]:
         return 0
-    named = [i for i in lists if elements[face][2][i][2] in ("vertex_indices", "vertex_index")]
-    indices = (named or lists)[0]  # the list trimesh takes as the faces
-    encoding = (header.split(b"\n", 2)[1:2] or [b""])[0].lower()
-    if b"ascii" not in encoding:  # binary: walk the elements as trimesh does
-        order = ">" if b"big" in encoding else "<"
-        position = body
-        for index, (_, count, properties) in enumerate(elements[:face + 1]):
-            size = 0
-            for number, (scalar, listed, _) in enumerate(properties):
-                if scalar is not None:
-                    size += _PLY_TYPES.get(scalar, 0)
-                    continue
-                count_size, item_size = _PLY_TYPES.get(listed[0], 0), _PLY_TYPES.get(listed[1], 0)
-                raw = data[position + size:position + size + count_size]
-                if not count_size or len(raw) < count_size:
-                    return 0  # trimesh cannot read it either
-                length = int(np.frombuffer(raw, dtype=f"{order}{'iu'[listed[0].startswith('u')]}{count_size}")[0])
-                if index == face and number == indices:
-                    polygon = length
-                size += count_size + max(length, 0) * item_size
-            if index == face:
-                held = (len(data) - position) // size if size > 0 else 0
-                return min(count, held) * max(polygon - 2, 0)
-            position += count * size
-        return 0
-    skip = sum(e[1] for e in elements[:face])
-    if not data.isascii():  # trimesh splits the body's text at U+2028, U+2029 and NEL too
-        data = data[:body] + _split_as_str(data[body:], blanks=False)
-    return _line_polygons(data, body, skip, elements[face][1], blank_lines_count=True, count_first=indices == 0)
+    count, properties = elements["face"]
+    names = list(properties)
+    if ascii_body:  # trimesh takes vertex_index, else vertex_indices
+        indices = next((n for n in ("vertex_index", "vertex_indices") if n in properties), None)
+    else:  # the one property, else the first of those names
+        indices = names[0] if len(names) == 1 else next(
+            (n for n in names if n in ("vertex_index", "vertex_indices")), None)
+    if indices is None or properties[indices][1] is None:
+        return 0  # trimesh finds no faces, or refuses them
+    if ascii_body:
+        in_order = list(elements)
+        skip = sum(elements[name][0] for name in in_order[:in_order.index("face")])
+        if not data.isascii():  # trimesh splits the body's text at U+2028, U+2029 and NEL too
+            data = data[:body] + _split_as_str(data[body:], blanks=False)
+        before = tuple(properties[n][1] is not None for n in names[:names.index(indices)])
+        lists = sum(item is not None for _, item in properties.values())
+        return _line_polygons(data, body, skip, count, blank_lines_count=True, before=before,
+                              first_applies=lists <= 1)
+    order = ">" if big else "<"
+    position = body
+    for name, (element_count, element_properties) in elements.items():  # walk the elements as trimesh does
+        size = 0
+        for key, (scalar, item) in element_properties.items():
+            if item is None:
+                size += int(_PLY_TYPES[scalar][1])
+                continue
+            count_type = np.dtype(order + _PLY_TYPES[scalar])
+            raw = data[position + size:position + size + count_type.itemsize]
+            if count_type.kind == "f" or len(raw) < count_type.itemsize:
+                return 0  # trimesh cannot read it either
+            length = int(np.frombuffer(raw, dtype=count_type)[0])
+            if name == "face" and key == indices:
+                polygon = length
+            size += count_type.itemsize + max(length, 0) * int(_PLY_TYPES[item][1])
+        if name == "face":
+            held = (len(data) - position) // size if size > 0 else 0
+            return min(count, held) * max(polygon - 2, 0)
+        position += element_count * size
+    return 0
 
 
 def _off_triangle_bound(data: bytes, max_faces: int) -> int:
@@ -229,28 +299,60 @@ def _off_triangle_bound(data: bytes, max_faces: int) -> int:
         repeated = head[head.find(b"\n") + 1:] if b"\n" in head else b""
         data = head + (b"\n" + repeated if repeated else b"") + _OFF_COMMENT.sub(b"", data[first:])
     data = _split_as_str(data, blanks=True)
-    at = data.find(b"OFF", 0, 65536)
-    while at >= 0 and b"#" in data[data.rfind(b"\n", 0, at) + 1:at]:  # trimesh strips comments first
-        at = data.find(b"OFF", at + 3, 65536)
+    # trimesh splits at the first OFF of the text, comments gone (above), however far in: looked
+    # for in the first 64 KiB only, 100 KB of blank lines before it or after it counted 0 of 99,900
+    at = data.find(b"OFF")
     if at < 0:
-        return 0  # trimesh refuses it (or its header follows 64 KiB of comments: bounded by its size alone)
-    position, counts = at + 3, None
-    while position < min(len(data), at + 65536) and counts is None:  # the first line with content: the counts
-        line_end = _NEXT_LINE_BREAK.search(data, position)
-        line_end = len(data) if line_end is None else line_end.start()
-        words = data[position:line_end].split(b"#", 1)[0].split()
-        position = line_end + 1
-        if words:
-            counts = words
-    if counts is None or len(counts) < 2 or not all(w.isdigit() for w in counts[:2]):
         return 0  # trimesh refuses it
-    vertices, faces = int(counts[0]), int(counts[1])
+    content = _CONTENT.search(data, at + 3)  # the first line with content: the counts
+    if content is None:
+        return 0  # trimesh refuses it
+    line_end = _NEXT_LINE_BREAK.search(data, content.start())
+    line_end = len(data) if line_end is None else line_end.start()
+    counts, position = data[content.start():line_end].split(), line_end + 1
+    if counts is None or len(counts) < 2:
+        return 0  # trimesh refuses it ("a malformed vertex/face count line")
+    vertices, faces = _off_counts(counts)
     for what, count in (("vertices", vertices), ("faces", faces)):
         if count > 3 * max_faces:
             raise MeshError(f"declares {count} {what}; the limit is {3 * max_faces}")
-    return _line_polygons(data, position, vertices, faces, blank_lines_count=False, count_first=True)
+    return _line_polygons(data, position, vertices, faces, blank_lines_count=False)
 
 
+_OFF_COUNT_NAMES = ("vertex count", "face count", "edge count")
+
+
+def _off_counts(words: list[bytes]) -> tuple[int, int]:
+    """The vertex and face counts of an OFF's count line, read as trimesh
+    reads them: ``np.array(words, dtype=np.int64)``, which is Python's int()
+    of each word, so ``+3``, ``3_0``, ``03`` and other scripts' digits
+    (Arabic-Indic, fullwidth) are counts; ``3.0`` or ``3e0`` are not, and
+    trimesh refuses the file.  Read as ASCII digits only, the first forms
+    counted 0 triangles of a mesh trimesh then loaded whole.
+
+    Refused here with the word: a word int() does not read or int64 does not
+    hold (trimesh refuses those too), and a negative vertex or face count,
+    which trimesh takes as a slice from the end of the file's lines (a face
+    count of -7 over 4 vertices and 50 quads loaded 96 triangles)."""
+    numbers = []
+    for i, word in enumerate(words):
+        name = _OFF_COUNT_NAMES[i] if i < len(_OFF_COUNT_NAMES) else f"count {i + 1}"
+        text = word.decode("utf-8", errors="replace")
+        try:
+            number = int(text)
+        except ValueError:
+            raise MeshError(f"the OFF header's {name} {text!r} is not a whole number") from None
+        if not -2**63 <= number < 2**63:
+            raise MeshError(f"the OFF header's {name} {text!r} is out of range")
+        if number < 0 and i < 2:
+            raise MeshError(f"the OFF header's {name} {text!r} is negative")
+        numbers.append(number)
+    return numbers[0], numbers[1]
+
+
+# A byte other than a blank or a line break (once _split_as_str has made the others of str.split
+# a space or a vertical tab).
+_CONTENT = re.compile(rb"[^ \t\n\r\v\f\x1c-\x1f]")
 # trimesh's comment_strip: a '#' to the next LF (only) is gone, the LF stays.
 _OFF_COMMENT = re.compile(rb"#[^\n]*")
 _LINE_CHUNK = 1 << 22  # bytes of lines scanned at once: temporaries of a few times this, whatever the file's size
@@ -340,30 +442,40 @@ def _first_other_than_blank(a: np.ndarray, lead: np.ndarray, ends: np.ndarray) -
 
 
 def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_lines_count: bool,
-                   count_first: bool) -> int:
-    """The triangles trimesh makes of ``count`` polygon lines ``n i1 ... in``
-    (a PLY face or an OFF face) after ``skip`` lines from byte ``start``:
-    the sum of n - 2, with n held to what the line can hold (a count of 10^9
-    on a short line gives what the line lists).  A line whose count cannot
-    be read here (not digits after the blanks), and every line when the list is not the line's first value (``count_first`` false: a
-    PLY with a flag or a uv list before its indices), count nothing: a guess
-    from the line's length refused valid files, and such files are still
-    bounded by their size (the memory estimate of a mesh file) and by the
-    triangles counted once trimesh has built them.  Blank and comment lines
-    are not counted unless ``blank_lines_count`` (PLY reads every line; OFF
-    skips them).  Scanned with NumPy in chunks, never per line in Python.
+                   before: tuple[bool, ...] = (), first_applies: bool = False) -> int:
+    """At least the triangles trimesh makes of ``count`` polygon lines
+    ``n i1 ... in`` (a PLY face or an OFF face) after ``skip`` lines from
+    byte ``start``: the sum of n - 2, with n held to what the line can list
+    after its count (a count of 10^9 on a short line gives what the line
+    lists).  ``before``: the values of a PLY face before its index list, a
+    scalar (False) or a list (True) each, whose count is read to step over
+    it.  Blank and comment lines are not counted unless ``blank_lines_count``
+    (PLY reads every line; OFF skips them).  Scanned with NumPy in chunks,
+    never per line in Python.
 
-    Exact for the files trimesh reads whose counts lead their lines.  Not a
-    bound for one hostile case: an ASCII PLY whose face lines all hold the
-    same number of values but whose counts differ from the first line's
-    (trimesh then applies the first line's count to every line); its
-    triangles are still bounded by the file's size."""
+    A count is read as a whole number of ASCII digits, after an optional
+    ``+`` (and with ``_`` between digits: Python's int() reads an OFF's
+    ``4_0`` as 40; NumPy's float parse refuses it in a PLY, so trimesh loads
+    nothing).  Any other count (negative, ``4.0``, ``4e1``, other scripts'
+    digits) counts all the line lists after it: trimesh reads ``-2`` as the
+    slice ``[1:-1]`` (every value but the last, a fan of 1996 triangles from a
+    line of 2000 indices), a PLY's ``4e1`` as 40 and an OFF's Arabic-Indic
+    digits by int().  Read as counting nothing, each of them was a mesh
+    trimesh built whole with 0 triangles counted.  Valid files write plain
+    digits, for which this is exact.
+
+    ``first_applies`` (a PLY face with one list at most): trimesh applies
+    the first line's count to every line when they all hold as many values
+    (a first line of 2000 indices made every later ``3 ...`` line of as
+    many a 1998-triangle fan: 2,047 counted of 99,900 built), so the lines'
+    values are counted when their counts differ, and if they are all as
+    many, each line counts the larger of its own count and the first's."""
     a = np.frombuffer(data, dtype=np.uint8)
     n = a.size
     seen = total = 0
     chunk_start = start
-    if not count_first:
-        return 0
+    first = None  # the first face line's count and values, once read (first_applies)
+    same_width, as_first = True, 0  # whether every line has the first's values so far; the total if so
     only_newlines = _only_newlines(data, start)
     while chunk_start < n and seen < skip + count:
         chunk_end = min(chunk_start + _LINE_CHUNK, n)
@@ -398,19 +510,95 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
         if not mine.any():
             continue
         ends, lead = ends[mine], lead[mine]
-        tokens = (ends - lead + 1) // 2  # values a line can hold: one character and one blank each
-        value = np.zeros(lead.size, dtype=np.int64)
-        digits = np.zeros(lead.size, dtype=np.int64)
-        going = np.ones(lead.size, dtype=bool)
-        for k in range(_COUNT_DIGITS):
-            position = np.minimum(lead + k, n - 1)
-            byte = a[position]
-            going &= (lead + k < ends) & (byte >= ord("0")) & (byte <= ord("9"))
-            value = np.where(going, value * 10 + (byte.astype(np.int64) - ord("0")), value)
-            digits += going
-        # an unread count (no digits where it should start) counts nothing
-        total += int(np.maximum(np.minimum(value, tokens - 1) - 2, 0)[digits > 0].sum())
-    return total
+        at, stepped = _count_positions(a, lead, ends, before) if before else (lead, np.ones(lead.size, dtype=bool))
+        value, exact = _read_counts(a, at, ends)
+        exact &= stepped
+        value = np.where(exact, value, _UNREAD)
+        # values the line can list after its count (one character and one blank each); a line
+        # whose earlier lists could not be stepped over: every value it holds
+        room = np.where(stepped, (ends - at + 1) // 2 - 1, (ends - lead + 1) // 2)
+        total += int(np.maximum(np.minimum(value, room) - 2, 0).sum())
+        if first_applies:
+            if first is None:
+                first, width = int(value[0]), int(_value_counts(a, lead[:1], ends[:1])[0])
+            if same_width and (value != first).any():  # else both ways count the same: no need to know
+                same_width = bool((_value_counts(a, lead, ends) == width).all())
+            if same_width:
+                as_first += int(np.maximum(np.minimum(np.maximum(value, first), room) - 2, 0).sum())
+    return as_first if first_applies and same_width else total
+
+
+def _value_counts(a: np.ndarray, lead: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """The number of values (words) of each line from ``lead`` to ``ends``."""
+    low, high = int(lead[0]), int(ends[-1])
+    separator = _SEPARATOR[a[low:high]]
+    first = ~separator
+    first[1:] &= separator[:-1]
+    values = np.flatnonzero(first) + low
+    return np.searchsorted(values, ends) - np.searchsorted(values, lead)
+
+
+_UNREAD = np.int64(1) << 62  # a count not read: the line lists all it can
+# Bytes that end a value: blanks, and a CR (kept at a CRLF line's end).
+_VALUE_END = _BLANK.copy()
+_VALUE_END[ord("\r")] = True
+_SEPARATOR = _VALUE_END | _LINE_BREAK
+
+
+def _read_counts(a: np.ndarray, at: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The whole numbers starting at ``at`` (each before its line's end
+    ``ends``), and whether each was read: ASCII digits after an optional
+    ``+``, ``_`` allowed between them, ending at a blank or the line's end
+    (see :func:`_line_polygons`).  At most ``_COUNT_DIGITS`` digits."""
+    n = a.size
+    position = at + ((at < ends) & (a[np.minimum(at, n - 1)] == ord("+")))
+    value = np.zeros(at.size, dtype=np.int64)
+    digits = np.zeros(at.size, dtype=np.int64)
+    used = np.zeros(at.size, dtype=np.int64)
+    going = np.ones(at.size, dtype=bool)
+    for k in range(2 * _COUNT_DIGITS):
+        inside = position + k < ends
+        byte = a[np.minimum(position + k, n - 1)]
+        digit = inside & (byte >= ord("0")) & (byte <= ord("9"))
+        going &= (digit & (digits < _COUNT_DIGITS)) | (inside & (byte == ord("_")) & (digits > 0))
+        if not going.any():
+            break
+        value = np.where(going & digit, value * 10 + (byte.astype(np.int64) - ord("0")), value)
+        digits += going & digit
+        used += going
+    stop = position + used
+    read = (digits > 0) & ((stop >= ends) | _VALUE_END[a[np.minimum(stop, n - 1)]])
+    return value, read
+
+
+def _count_positions(a: np.ndarray, lead: np.ndarray, ends: np.ndarray,
+                     before: tuple[bool, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Where each line's count is, after the values ``before`` it (a scalar
+    or a list, whose count is read to step over it), and whether each line
+    could be stepped through (a list's count not read: False).  A line with
+    fewer values gives its end.  From the positions of every value of the
+    lines' span (a few times its bytes, as the other temporaries)."""
+    low, high = int(lead[0]), int(ends[-1])
+    separator = _SEPARATOR[a[low:high]]
+    first = ~separator
+    first[1:] &= separator[:-1]  # a value starts after a separator (or where the span does)
+    del separator
+    values = np.flatnonzero(first) + low
+    del first
+    ok = np.ones(lead.size, dtype=bool)
+    if not values.size:
+        return ends.copy(), ok
+    t = np.searchsorted(values, lead)
+    last = np.searchsorted(values, ends)  # each line's values are values[t:last]
+    for is_list in before:
+        if is_list:
+            length, read = _read_counts(a, values[np.minimum(t, values.size - 1)], ends)
+            ok &= read | (t >= last)
+            t = t + 1 + np.where(read, length, 0)
+        else:
+            t = t + 1
+    t = np.minimum(t, last)
+    return np.where(t < last, values[np.minimum(t, values.size - 1)], ends), ok
 
 
 def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None = None,
@@ -451,6 +639,10 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
             data = f.read(max_bytes + 1)  # a file growing after the stat is still bounded
     except OSError as e:
         raise MeshError(f"cannot read: {e.strerror or e}") from None
+    except MeshError:
+        raise
+    except ValueError:  # os.stat of a name holding a NUL byte (Mesh.read; the scene loader refuses it first)
+        raise MeshError("cannot read: a file name cannot hold a NUL byte") from None
     if len(data) > max_bytes:
         raise MeshError(f"file is more than {max_bytes} bytes")
     if not data.strip():
@@ -474,6 +666,7 @@ def read_mesh(path: str, *, max_bytes: int | None = None, max_faces: int | None 
     options = {}
     if ext in ("glb", "gltf"):  # instances multiply a small file's triangles: counted before trimesh builds them
         doc = _gltf_document(data, ext)
+        _gltf_references(doc)
         declared = _gltf_triangles(doc)
         if declared > max_faces:
             raise MeshError(f"declares {declared} triangles (meshes and their instances); the limit is {max_faces}")
@@ -539,25 +732,99 @@ def _reader_problem(e: Exception) -> str:
 
 
 def _obj_triangle_bound(data: bytes) -> int:
-    """At least the triangles trimesh makes of an OBJ's faces (an n-gon is
-    n - 2 of them), by counting in C, never per line in Python: each vertex of
-    a face after the first follows a space or tab, and the file's other
-    lines (``v x y z``: three, ``vt u v``: two, ``vn``: three) account for
-    their own.  Comments or doubled spaces only raise the bound; for a file of
-    triangles it is about their number."""
-    separators = data.count(b" ") + data.count(b"\t")
-    others = 3 * data.count(b"\nv ") + 2 * data.count(b"\nvt ") + 3 * data.count(b"\nvn ")
-    faces = data.count(b"\nf ") + data.startswith(b"f ")
-    return max(faces, separators - others - 2 * faces)
+    """At least the triangles trimesh makes of an OBJ's faces, counted per
+    face line with NumPy in chunks, never per line in Python.
+
+    Read as trimesh reads them: lines end at LF (CRLF made LF first) and a
+    backslash before one continues the line (joined in a copy, only then); a
+    face line starts ``f``; its vertices are its words, split at any
+    whitespace str.split knows (a vertical tab, form feed, lone CR, \\x1c-
+    \\x1f, NBSP, U+3000, ...: a count of spaces and tabs alone counted 2
+    triangles of a 1998-triangle fan whose indices a vertical tab parted).
+    An n-word line is n - 2 triangles, except that where every face line of
+    a chunk has as many values (words split at ``/`` too), trimesh gives
+    each the first line's words: so the count is exact when every face line
+    has the same number of values per word (``1 2 3`` or ``1/1/1 2/2/2 ...``
+    throughout, as exporters write), and otherwise each line counts at least
+    the smaller of its values and the most words a face line has."""
+    if b"\\\n" in data or b"\\\r\n" in data:  # a copy, only for such a file
+        data = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
+    data = _split_as_str(data, blanks=True)
+    total, regular, most = _obj_face_triangles(data)
+    return total if regular else _obj_face_triangles(data, most)[0]
+
+
+# Bytes that part an OBJ face's words (str.split's whitespace once _split_as_str has made the
+# rest of it a space or a vertical tab), and its values (a '/' too).
+_OBJ_WORD_END = np.zeros(256, dtype=bool)
+_OBJ_WORD_END[list(b" \t\n\r\v\f\x1c\x1d\x1e\x1f")] = True
+_OBJ_VALUE_END = _OBJ_WORD_END.copy()
+_OBJ_VALUE_END[ord("/")] = True
+
+
+def _obj_face_triangles(data: bytes, most: int | None = None) -> tuple[int, bool, int]:
+    """Triangles of the face lines of ``data`` (see :func:`_obj_triangle_bound`):
+    ``(total, regular, most words of a line)``, ``regular`` when every face
+    line has as many values per word as the first.  Without ``most`` each
+    line counts max(words - 2, 0); with it, max(words, min(values, most)) - 2."""
+    a = np.frombuffer(data, dtype=np.uint8)
+    n = a.size
+    total, per_word, regular, most_words = 0, None, True, 0
+    chunk_start = 0
+    while chunk_start < n:
+        chunk_end = min(chunk_start + _LINE_CHUNK, n)
+        starts = np.flatnonzero(a[max(chunk_start - 1, 0):chunk_end - 1] == ord("\n")) + max(chunk_start - 1, 0) + 1
+        if chunk_start == 0:
+            starts = np.concatenate(([0], starts))
+        chunk_start = chunk_end
+        starts = starts[a[np.minimum(starts, n - 1)] == ord("f")] if starts.size else starts
+        starts = starts[starts < n]
+        if not starts.size:
+            continue
+        following = data.find(b"\n", int(starts[-1]))
+        ends = np.minimum(np.append(np.flatnonzero(a[int(starts[0]):int(starts[-1])] == ord("\n"))
+                                    + int(starts[0]), following if following >= 0 else n), n)
+        # each face line's end: the first LF after its start
+        ends = ends[np.searchsorted(ends, starts)]
+        lead = starts + 1  # after the 'f'
+        words = _counts_between(a, lead, ends, _OBJ_WORD_END)
+        values = _counts_between(a, lead, ends, _OBJ_VALUE_END)
+        most_words = max(most_words, int(words.max()))
+        if most is None:
+            if per_word is None and words[0] > 0:
+                per_word = (int(values[0]), int(words[0]))
+            if per_word is not None:
+                regular &= bool((values * per_word[1] == words * per_word[0]).all())
+            total += int(np.maximum(words - 2, 0).sum())
+        else:
+            total += int(np.maximum(np.maximum(words, np.minimum(values, most)) - 2, 0).sum())
+    return total, regular, most_words
+
+
+def _counts_between(a: np.ndarray, lead: np.ndarray, ends: np.ndarray, end_table: np.ndarray) -> np.ndarray:
+    """The number of runs of bytes not in ``end_table`` on each line from
+    ``lead`` to ``ends`` (sorted, apart), one starting at ``lead`` itself too."""
+    low, high = int(lead[0]), int(ends[-1])
+    if high <= low:
+        return np.zeros(lead.size, dtype=np.int64)
+    parting = end_table[a[low:high]]
+    first = ~parting
+    first[1:] &= parting[:-1]
+    inside = lead < high
+    first[lead[inside] - low] = ~parting[lead[inside] - low]  # a word right after the 'f' (a line 'f\\' continued)
+    del parting
+    starts = np.flatnonzero(first) + low
+    del first
+    return np.searchsorted(starts, ends) - np.searchsorted(starts, lead)
 
 
 # Bytes a zero index may follow / be followed by in a face line ("f 0 2 3", "f 1/0/1 ...", "f -0 ...").
 _BEFORE_INDEX = np.zeros(256, dtype=bool)
-_BEFORE_INDEX[list(b" \t/")] = True
+_BEFORE_INDEX[list(b" \t/\v\f\r\x1c\x1d\x1e\x1f")] = True  # the whitespace that parts trimesh's words too
 _SIGN = np.zeros(256, dtype=bool)
 _SIGN[list(b"+-")] = True
 _AFTER_INDEX = np.zeros(256, dtype=bool)
-_AFTER_INDEX[list(b" \t/\r\n#")] = True
+_AFTER_INDEX[list(b" \t/\r\n#\v\f\x1c\x1d\x1e\x1f")] = True
 _ZERO_INDEX_CHUNK = 1 << 22  # bytes scanned at once: temporaries of a few times this, whatever the file's size
 _NOT_ZERO = re.compile(rb"[^0]")
 
@@ -791,6 +1058,47 @@ def _gltf_document(data: bytes, ext: str) -> dict | None:
     return doc if isinstance(doc, dict) else None
 
 
+def _gltf_references(doc: dict | None) -> None:
+    """Refuse a glTF whose meshes name an accessor it does not have, or whose
+    accessors name a buffer view it does not have, naming the JSON path:
+    trimesh's own message for ``"POSITION": 5`` of a file without accessors
+    was "cannot access local variable 'access' where it is not associated
+    with a value"."""
+    if not isinstance(doc, dict):
+        return
+
+    def items(key):
+        value = doc.get(key, [])
+        return value if isinstance(value, list) else []
+
+    def check(index, path: str, key: str) -> None:
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(items(key)):
+            raise MeshError(f"{path} is {json_text(index)}, but the file has {len(items(key))} {key}")
+
+    def json_text(value) -> str:
+        import json
+        text = json.dumps(value)
+        return text if len(text) <= 40 else text[:40] + "..."
+
+    for m, mesh in enumerate(items("meshes")):
+        primitives = mesh.get("primitives", []) if isinstance(mesh, dict) else []
+        for p, primitive in enumerate(primitives if isinstance(primitives, list) else []):
+            if not isinstance(primitive, dict):
+                continue
+            where = f"meshes[{m}].primitives[{p}]"
+            attributes = primitive.get("attributes", {})
+            for name, index in (attributes.items() if isinstance(attributes, dict) else ()):
+                check(index, f"{where}.attributes.{name}", "accessors")
+            if "indices" in primitive:
+                check(primitive["indices"], f"{where}.indices", "accessors")
+    for a, accessor in enumerate(items("accessors")):
+        if isinstance(accessor, dict) and "bufferView" in accessor:
+            check(accessor["bufferView"], f"accessors[{a}].bufferView", "bufferViews")
+    for v, view in enumerate(items("bufferViews")):
+        if isinstance(view, dict) and "buffer" in view:
+            check(view["buffer"], f"bufferViews[{v}].buffer", "buffers")
+
+
 def _gltf_triangles(doc: dict | None) -> int:
     """About the triangles a glTF/GLB file makes trimesh build: each mesh's
     (from its accessors' counts) once per node that instances it, and once if
@@ -877,11 +1185,28 @@ def _text_as_utf8(data: bytes, ext: str) -> bytes:
         binary = len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data)
         return data if binary else utf8(data)
     if ext == "ply":
-        end = data.find(b"end_header")
-        if end >= 0:
-            end = data.find(b"\n", end) + 1 or len(data)
+        end = _ply_header_end(data)
+        if end is not None:
             return utf8(data[:end]) + data[end:]
     return data
+
+
+def _ply_header_end(data: bytes) -> int | None:
+    """Where a PLY's body starts as trimesh reads the header: after the first
+    line from the third holding the word ``end_header`` (:func:`_ply_header`)."""
+    second = data.find(b"\n", data.find(b"\n") + 1)
+    position = second + 1
+    while second >= 0:
+        at = data.find(b"end_header", position)
+        if at < 0:
+            return None
+        start = data.rfind(b"\n", 0, at) + 1
+        end = data.find(b"\n", at)
+        end = len(data) if end < 0 else end
+        if "end_header" in _header_text(data[start:end]).split():
+            return min(end + 1, len(data))
+        position = end + 1
+    return None
 
 
 def mesh_triangles(mesh: Mesh) -> dict:
