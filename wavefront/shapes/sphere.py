@@ -148,6 +148,11 @@ class SphereSet(ShapeKind):
             self.velocity = np.ascontiguousarray(end.astype(dtype) - self.center)
         self.shared_axes = self._shared_axes()
         self._plans = {}  # (start, stop): the fields of a block's plain spheres (see _key_plan)
+        # shared_axes, anchor, the antipodes and the plans are derived from
+        # these once: writing to them in place would leave those stale, so
+        # they are read-only (a changed set is a new SphereSet).
+        for field in (self.center, self.radius, self.radius_squared):
+            field.flags.writeable = False
 
     def _shared_axes(self) -> tuple[int, ...]:
         """The coordinates (0, 1, 2 for x, y, z) that every sphere of the set
