@@ -160,8 +160,12 @@ LEAF_ROUNDS_ABOVE = 2
 # in all 15 (12288: 234 against 245; 32768 without equal batches: 4 % slower); renders on
 # one worker (abcpu.sh, CPU medians): 600x338 16 spp 3.18 against 3.32 s, W2 (400x225 10
 # spp) 0.97 against 1.01.  The outsized brute force kept at 8,192 rays a call inside a
-# batch: no faster (-4.2 against -4.4 %).
-TRAVERSAL_BATCH = 16384
+# batch: no faster (-4.2 against -4.4 %).  Session 12, with the near tables' tighter pads (fewer
+# pairs a ray) and the floor row: 32768 renders faster again (ab.py, 9 interleaved fresh runs on
+# one worker, CPU: the cover at 600x338x16 median ratio 0.957, every run faster, 0.919-0.992;
+# W2's 400x225x10 0.966, 0.914-1.026), each batch's ~250 NumPy calls again shared by twice the
+# rays; 65536 against 32768: 0.998 (0.967-1.089), within noise.
+TRAVERSAL_BATCH = 32768
 # Node-major trees: at 4096 the 1M-triangle terrain rendered ~10 % faster than at 8192 while
 # every slab test wrote eight fresh arrays; with the reductions in place and the transposed
 # copies folded into the subtraction (session 6), 8192 is ~4 % faster than 4096 (intersection
