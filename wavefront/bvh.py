@@ -46,14 +46,14 @@ most of what a level costs.
 The pads grow with the farthest ray origin (ROUNDING_PAD: the exact test's own
 rounding is a few epsilons of ``|o - c|``), and a scene's extent is set by its
 farthest reach: the cover's ground sphere puts it at 2,000 units, while all but a
-few rays in a million start within 40 of the origin.  Small trees (not node-major)
-whose pad for rays from within NEAR_EXTENT of the origin is smaller than the
-whole extent's keep two sets of tables: their own at that near pad, walked by the
-rays whose origin lies within NEAR_EXTENT / 2 on every axis (so within
-NEAR_EXTENT of the origin: every bound here holds with NEAR_EXTENT as the
-farthest origin), and ``far``, a copy of the tree at the whole extent's pad,
-walking the other rays after them in the same call, each with the same best hit
-to beat.  Which tables a ray walks changes only which pairs reach the exact test,
+few rays in a million start within 40 of the origin.  Trees of up to
+NEAR_TABLES_NODES nodes whose pad for rays from within NEAR_EXTENT of the origin
+is smaller than the whole extent's keep two sets of tables: their own at that
+near pad, walked by the rays whose origin lies within NEAR_EXTENT / 2 on every
+axis (so within NEAR_EXTENT of the origin: every bound here holds with
+NEAR_EXTENT as the farthest origin), and ``far``, a copy of the tree at the
+whole extent's pad, walking the other rays after them in the same call, each
+with the same best hit to beat.  Which tables a ray walks changes only which pairs reach the exact test,
 never its answer.
 
 Float32 scenes with huge spheres (the cover scene's ground of radius 1000)
@@ -467,6 +467,10 @@ SMALL_STEP_LEVELS = 2
 # sqrt(3) / 2 NEAR_EXTENT.  The cover's recorded intersect calls (600x338 2 spp, replayed):
 # ~5 % less CPU a ray (fewer boxes entered, ~half as many exact tests).
 NEAR_EXTENT = FLOAT32_EXTENT
+# ... in trees of at most this many nodes: the copy's octant tables cost ~1 KB a node (the
+# cover's 511 nodes: 0.54 MB; here at most ~4.5 MB), which compile's memory estimate
+# (render.COMPILE_BYTES_PER_PRIMITIVE) was not measured with.  Bigger trees keep one set.
+NEAR_TABLES_NODES = 1 << 12
 PLANE_ROUNDING = 256
 PLANE_EXACT = 512
 PLANE_MIN_SINE = 2.0 ** -10
@@ -712,7 +716,7 @@ class BVH:
         self._build_traversal_tables(boxes)
         tree_extent = float(np.abs(boxes).max())
         rays_extent = tree_extent if self.extent is None else max(tree_extent, float(self.extent))
-        if not self.empty and not self.node_major and \
+        if not self.empty and self.child.size <= NEAR_TABLES_NODES and \
                 self._pad(tree_extent, min(rays_extent, NEAR_EXTENT)) < self._pad(tree_extent, rays_extent):
             # near and far tables (see NEAR_EXTENT): the tables just built, at the full pad,
             # serve the far rays as a copy of this tree; this tree's own are rebuilt at the
