@@ -43,6 +43,19 @@ far more than the rounding of those coordinates and of the slab arithmetic
 halves the bytes every level gathers and doubles the SIMD width, which is
 most of what a level costs.
 
+The pads grow with the farthest ray origin (ROUNDING_PAD: the exact test's own
+rounding is a few epsilons of ``|o - c|``), and a scene's extent is set by its
+farthest reach: the cover's ground sphere puts it at 2,000 units, while all but a
+few rays in a million start within 40 of the origin.  Trees of up to
+NEAR_TABLES_NODES nodes whose pad for rays from within NEAR_EXTENT of the origin
+is smaller than the whole extent's keep two sets of tables: their own at that
+near pad, walked by the rays whose origin lies within NEAR_EXTENT / 2 on every
+axis (so within NEAR_EXTENT of the origin: every bound here holds with
+NEAR_EXTENT as the farthest origin), and ``far``, a copy of the tree at the
+whole extent's pad, walking the other rays after them in the same call, each
+with the same best hit to beat.  Which tables a ray walks changes only which pairs reach the exact test,
+never its answer.
+
 Float32 scenes with huge spheres (the cover scene's ground of radius 1000)
 test those reaching past ``FLOAT32_EXTENT`` with the anchored roots
 (``geometry.anchored_roots``: the near root as the power of the origin over
@@ -70,7 +83,7 @@ as in any float32 set (``SphereSet.anchor``).  The hits are still brute force's,
   measured up to 273 units from a ball of radius 0.2, which is why
   ``anchored_roots`` caps the near root at ``|big|``).  An anchored set's pad is at least
   ROUNDING_PAD float32 epsilons of ``2 FLOAT32_EXTENT`` (3.9e-3, see
-  ``_build_traversal_tables``): a ray starting within ``pad - T_MIN`` of a
+  ``BVH._pad``): a ray starting within ``pad - T_MIN`` of a
   sphere starts inside its padded boxes and padded bounding sphere by more
   than ``T_MIN``, so every box and the sphere pass keep that pair whatever its
   root (entry <= 0, leave and far root past the floor) and the exact test
@@ -96,6 +109,8 @@ and its levels gather columns directly, without that copy.
 """
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 
@@ -145,8 +160,12 @@ LEAF_ROUNDS_ABOVE = 2
 # in all 15 (12288: 234 against 245; 32768 without equal batches: 4 % slower); renders on
 # one worker (abcpu.sh, CPU medians): 600x338 16 spp 3.18 against 3.32 s, W2 (400x225 10
 # spp) 0.97 against 1.01.  The outsized brute force kept at 8,192 rays a call inside a
-# batch: no faster (-4.2 against -4.4 %).
-TRAVERSAL_BATCH = 16384
+# batch: no faster (-4.2 against -4.4 %).  Session 12, with the near tables' tighter pads (fewer
+# pairs a ray) and the floor row: 32768 renders faster again (ab.py, 9 interleaved fresh runs on
+# one worker, CPU: the cover at 600x338x16 median ratio 0.957, every run faster, 0.919-0.992;
+# W2's 400x225x10 0.966, 0.914-1.026), each batch's ~250 NumPy calls again shared by twice the
+# rays; 65536 against 32768: 0.998 (0.967-1.089), within noise.
+TRAVERSAL_BATCH = 32768
 # Node-major trees: at 4096 the 1M-triangle terrain rendered ~10 % faster than at 8192 while
 # every slab test wrote eight fresh arrays; with the reductions in place and the transposed
 # copies folded into the subtraction (session 6), 8192 is ~4 % faster than 4096 (intersection
@@ -437,6 +456,21 @@ SMALL_STEP_LEVELS = 2
 # PLANE_MIN_SINE get no plane (never dropped).  On the 1M terrain the pass drops about
 # half the slots the box pass keeps (rays crossing a box above or below the surface,
 # rays leaving a surface).
+# Pads grow with the farthest ray origin (ROUNDING_PAD): in float32 scenes with huge spheres
+# that is the reach of their far parts (the cover's ground: 2,000 units, box pads of 0.031 and
+# bounding spheres of radius 0.2 + 4 x 0.031 = 0.32 around its balls of 0.2), while all but a
+# few rays in a million start within 40 units of its origin.  Small trees therefore keep two
+# sets of tables: their own, padded for rays whose origins lie within NEAR_EXTENT of the
+# origin (the cover: pads of 3.9e-3), and ``far``'s, a copy of the tree padded for the whole
+# extent, which walks the other rays (none in most batches).  A ray counts as near when every
+# coordinate of its origin lies within NEAR_EXTENT / 2, so its distance is at most
+# sqrt(3) / 2 NEAR_EXTENT.  The cover's recorded intersect calls (600x338 2 spp, replayed):
+# ~5 % less CPU a ray (fewer boxes entered, ~half as many exact tests).
+NEAR_EXTENT = FLOAT32_EXTENT
+# ... in trees of at most this many nodes: the copy's octant tables cost ~1 KB a node (the
+# cover's 511 nodes: 0.54 MB; here at most ~4.5 MB), which compile's memory estimate
+# (render.COMPILE_BYTES_PER_PRIMITIVE) was not measured with.  Bigger trees keep one set.
+NEAR_TABLES_NODES = 1 << 12
 PLANE_ROUNDING = 256
 PLANE_EXACT = 512
 PLANE_MIN_SINE = 2.0 ** -10
@@ -445,7 +479,7 @@ PLANE_BUILD_CHUNK = 1 << 16  # slots per step of the planes' build (temporaries 
 
 def _entry_leave(near, far, floor, bound, clip_leave):
     """Where rays enter and leave boxes: the largest of ``near``'s three axes
-    (and ``floor``) and the smallest of ``far``'s (and ``bound``, by
+    (and ``floor``: a row, one per pair, see _traverse's ``floors``) and the smallest of ``far``'s (and ``bound``, by
     ``clip_leave``), written in place into ``near[0]`` and ``far[0]`` (fewer
     and smaller temporaries: a level's pairs stay in cache, see
     TRAVERSAL_BATCH_BIG).  ``near``, ``far``: (axes, ...) slab distances."""
@@ -677,9 +711,31 @@ class BVH:
         # in the plane table (at j * K + k they lay K apart, a miss and often a TLB miss each: on
         # the 1M terrain the plane pass cost ~10 % more)
         self.leaf_primitive = np.maximum(self.leaf_slot, 0).T.ravel()
-        self._build_traversal_tables(boxes.astype(np.float64))
+        boxes = boxes.astype(np.float64)
+        self.far = None
+        self._build_traversal_tables(boxes)
+        tree_extent = float(np.abs(boxes).max())
+        rays_extent = tree_extent if self.extent is None else max(tree_extent, float(self.extent))
+        if not self.empty and self.child.size <= NEAR_TABLES_NODES and \
+                self._pad(tree_extent, min(rays_extent, NEAR_EXTENT)) < self._pad(tree_extent, rays_extent):
+            # near and far tables (see NEAR_EXTENT): the tables just built, at the full pad,
+            # serve the far rays as a copy of this tree; this tree's own are rebuilt at the
+            # near pad
+            self.far = copy.copy(self)
+            self._build_traversal_tables(boxes, near=True)
 
-    def _build_traversal_tables(self, boxes: np.ndarray) -> None:
+    def _pad(self, tree_extent: float, rays_extent: float) -> float:
+        """The boxes' pad for rays starting within ``rays_extent`` of the origin (see BOX_PAD)."""
+        if any(getattr(kind, "anchored", False) for kind in self.primitives.kinds):
+            # an anchored set reaches past FLOAT32_EXTENT (its outsized spheres, whatever the
+            # tree's own extent): pads of at least 3.9e-3, several T_MIN, keep every pair whose
+            # ray starts near its sphere (see the module docstring), also without an extent
+            rays_extent = max(rays_extent, FLOAT32_EXTENT)
+        pad = max(BOX_PAD * tree_extent, ROUNDING_PAD * float(np.finfo(self.primitives.dtype).eps) * 2 * rays_extent)
+        # flat primitives accept hits up to their own (much smaller) pad outside their boxes
+        return pad + self.primitives.pad + float(np.finfo(np.float32).tiny)
+
+    def _build_traversal_tables(self, boxes: np.ndarray, near: bool = False) -> None:
         """float32 child boxes per octant: ``octant_boxes (12, 8K)``; ``boxes`` is (6, K) float64.
 
         Column ``octant * K + node`` holds node's two children; rows are the
@@ -695,14 +751,7 @@ class BVH:
         f32 = np.float32
         tree_extent = float(np.abs(boxes).max())
         rays_extent = tree_extent if self.extent is None else max(tree_extent, float(self.extent))
-        if any(getattr(kind, "anchored", False) for kind in self.primitives.kinds):
-            # an anchored set reaches past FLOAT32_EXTENT (its outsized spheres, whatever the
-            # tree's own extent): pads of at least 3.9e-3, several T_MIN, keep every pair whose
-            # ray starts near its sphere (see the module docstring), also without an extent
-            rays_extent = max(rays_extent, FLOAT32_EXTENT)
-        pad = max(BOX_PAD * tree_extent, ROUNDING_PAD * float(np.finfo(self.primitives.dtype).eps) * 2 * rays_extent)
-        # flat primitives accept hits up to their own (much smaller) pad outside their boxes
-        pad += self.primitives.pad + float(np.finfo(f32).tiny)
+        pad = self._pad(tree_extent, min(rays_extent, NEAR_EXTENT) if near else rays_extent)
         # the root box, padded alike, clips rays in the scene's precision
         self.root_box = np.concatenate((boxes[:3, :1] - pad, boxes[3:, :1] + pad))
         # each leaf slot's own primitive box, padded like the nodes' and rounded outwards, for
@@ -887,7 +936,15 @@ class BVH:
         first = self.outsized_set._intersect(origin, direction, t_max, time, escaped_inf=False) \
             if len(self.outsized) else None
         best_t = limit.copy() if first is None else np.minimum(first.t, limit)
-        found = self._traverse(origin, direction, limit, best_t, time=time)  # lowers best_t to the tree's hits
+        far = self._far_rays(origin)
+        found = self._traverse(origin, direction, limit, best_t, time=time, skip=far)  # lowers best_t to the tree's hits
+        if far is not None:  # the far rays through the tables padded for them (see NEAR_EXTENT)
+            far = far.nonzero()[0]
+            far_t = best_t.take(far)
+            far_found = self.far._traverse(origin.take(far, axis=1), direction.take(far, axis=1), limit.take(far),
+                                           far_t, time=None if time is None else time.take(far))
+            best_t[far] = far_t
+            found += [(far.take(ray), t, prim) for ray, t, prim in far_found]
         # int32 throughout, what Hits holds (every scene-wide index fits): no final cast, and
         # the sentinel's correction in int32 (~5 us a batch of 8,192 rays against ~10)
         none = np.int32(len(self.primitives))  # sentinel above every index, so np.minimum keeps real ones
@@ -917,14 +974,32 @@ class BVH:
             # (mode="wrap" on indices valid by construction: see _traverse)
             o, d = origin.take(rest, axis=1, mode="wrap"), direction.take(rest, axis=1, mode="wrap")
             lim = limit.take(rest, mode="wrap")
-            found = self._traverse(o, d, lim, lim.copy(), any_hit=True,
-                                   time=None if time is None else time.take(rest, mode="wrap"))
+            t = None if time is None else time.take(rest, mode="wrap")
+            far = self._far_rays(o)
+            found = self._traverse(o, d, lim, lim.copy(), any_hit=True, time=t, skip=far)
+            if far is not None:  # see _intersect
+                far = far.nonzero()[0]
+                far_lim = lim.take(far)
+                far_found = self.far._traverse(o.take(far, axis=1), d.take(far, axis=1), far_lim, far_lim.copy(),
+                                               any_hit=True, time=None if t is None else t.take(far))
+                found += [(far.take(ray),) for ray, *_ in far_found]
             if found:
                 blocked[rest.take(np.concatenate([f[0] for f in found]), mode="wrap")] = True
         return blocked
 
-    def _traverse(self, origin, direction, limit, best_t, any_hit: bool = False, time=None) -> list:
-        """Walk the tree for the rays that enter its root box.
+    def _far_rays(self, origin) -> np.ndarray | None:
+        """Which rays start beyond NEAR_EXTENT / 2 on some axis (bool (N,)), or None if none
+        does or the tree has one set of tables."""
+        if self.far is None:
+            return None
+        bound = NEAR_EXTENT / 2
+        if origin.max(initial=-np.inf) <= bound and origin.min(initial=np.inf) >= -bound:  # the usual batch
+            return None
+        far = np.abs(origin) > bound
+        return far[0] | far[1] | far[2]
+
+    def _traverse(self, origin, direction, limit, best_t, any_hit: bool = False, time=None, skip=None) -> list:
+        """Walk the tree for the rays that enter its root box (and are not ``skip``'s).
 
         Lowers ``best_t`` in place to each ray's nearest tree hit and returns
         a list of ``(ray, t, primitive)`` candidate hits; per ray, those with
@@ -958,6 +1033,8 @@ class BVH:
         enters = near <= far
         enters &= far >= T_MIN
         enters &= near <= best_t
+        if skip is not None:
+            enters &= ~skip
         ray_ids = enters.nonzero()[0]
         if ray_ids.size == 0:
             return []
@@ -1115,7 +1192,7 @@ class BVH:
                 b = gather_minus(self.leaf_boxes32, node, shape, r[:3])
                 b *= r[3:]
                 near, far = np.fmin(b[0], b[1]), np.fmax(b[0], b[1], out=b[1])
-                entry, leave = _entry_leave(near, far, floor, to_beat.take(ray, mode="wrap"), np.minimum)
+                entry, leave = _entry_leave(near, far, floors(ray.size), to_beat.take(ray, mode="wrap"), np.minimum)
                 slot = (entry <= leave).ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
                 j, pair = divmod_by(slot, ray.size)
                 row = node.take(pair, mode="wrap") * self.leaf_size + j  # slot j of node k at k * leaf_size + j
@@ -1173,6 +1250,17 @@ class BVH:
             ray_floor = float32_floor(shift) if self.sphere_leaves else None
         floor = max(f32(0), np.fmin.reduce(ray_floor) if ray_floor is not None else
                     np.nextafter(f32(T_MIN - np.fmax.reduce(shift)), f32(-np.inf)))
+        # ... as a row of pairs: NumPy's fmax loop is vectorised for two arrays, not for an
+        # array and a scalar (4 x 12,000 float32 in place: 8 against 40 us), so the walk's
+        # clamp of its entries at the floor takes a slice of this row, grown as needed (the
+        # same numbers; the cover's recorded calls: ~2.4 -> ~0.6 ns a pair, ~3 % of a step)
+        floor_row = [np.empty(0, dtype=f32)]
+
+        def floors(pairs):
+            """``floor`` repeated ``pairs`` times."""
+            if floor_row[0].size < pairs:
+                floor_row[0] = np.full(max(pairs, 2 * floor_row[0].size), floor, dtype=f32)
+            return floor_row[0][:pairs]
         # ... and each ray's own, for the sphere pass (see sphere_slots), where one gather serves
         # a whole (leaf_size, P) pass: a bounce ray's exact test of the ball it leaves is
         # dropped only where T_MIN is its floor, while the batch's is 0 as soon as one of its
@@ -1252,7 +1340,7 @@ class BVH:
                     near, far = np.fmin(t[0], t[1]), np.fmax(t[0], t[1], out=t[1])
                 else:
                     near, far = t[0], t[1]
-                entry, leave = _entry_leave(near, far, floor, to_beat.take(ray, mode="wrap"), np.fmin)
+                entry, leave = _entry_leave(near, far, floors(pairs), to_beat.take(ray, mode="wrap"), np.fmin)
                 keep = (entry <= leave).ravel().nonzero()[0]  # <=: keep ties; left children first, then right
                 # a kept index k is child k // pairs of pair k % pairs: "wrap" does the modulo
                 node = node.take(keep, mode="wrap")
