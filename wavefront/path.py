@@ -700,12 +700,11 @@ def background_light(background, direction, rows) -> np.ndarray:
     ``rows`` (indices into ``direction`` (3, N)).
 
     The sky's colour reads a direction's y alone: only that row is gathered
-    (W1's bounces lose 5-55 Ki of their ~60 Ki paths to the sky, and the
-    three rows' gather was half of this), then the same operations as
-    :meth:`Sky.radiance` in the same order, each product and sum in
-    place where it commutes exactly: ``a = 0.5 * (y + 1)``, ``bottom + a *
-    (top - bottom)``.  A captured W1 bounce of 55 Ki escapes: 157 us
-    against 226 with the throughput's gather and product."""
+    (W1's captured bounces lose 1-55 Ki of their paths to the sky), then the
+    same operations as :meth:`Sky.radiance` in the same order, each product
+    and sum in place where it commutes exactly: ``a = 0.5 * (y + 1)``,
+    ``bottom + a * (top - bottom)``.  A captured W1 bounce of 55 Ki
+    escapes: 157 us against 226 with the throughput's gather and product."""
     if type(background) is not Sky:
         return background.radiance(gather(direction, rows))
     a = direction[1].take(rows, mode=TAKE_MODE)
