@@ -308,24 +308,47 @@ def lambertian_eval(albedo, normal, direction):
     return albedo * lambertian_pdf(normal, direction)
 
 
+class LazyUniforms:
+    """A kernel's uniforms ``(2, N)`` drawn only where it reads them:
+    ``draw(rows)`` gives those of rows ``rows`` (indices), ``draw(None)``
+    every row's; ``dtype`` is theirs.  (See :func:`scatter_metal`.)"""
+
+    __slots__ = ("draw", "dtype")
+
+    def __init__(self, draw, dtype):
+        self.draw, self.dtype = draw, np.dtype(dtype)
+
+
+def _uniforms(u, rows=None):
+    """The uniforms ``(2, R)`` of rows ``rows`` (None: all) of ``u``, a
+    ``(2, N)`` array or :class:`LazyUniforms`."""
+    if isinstance(u, LazyUniforms):
+        return u.draw(rows)
+    return u if rows is None else gather(u, rows)
+
+
 def scatter_metal(direction, normal, front_face, albedo, fuzz, u, out=None):
     """Mirror reflection jittered by ``fuzz * random_unit_vector()``.
 
     Rows whose scattered direction does not point above the surface
-    (``d.n <= 0``) are absorbed, as in the lesson.
+    (``d.n <= 0``) are absorbed, as in the lesson.  ``u``: the uniforms,
+    ``(2, N)`` or :class:`LazyUniforms` (perfect mirrors read those of a
+    few rows at most).
     """
     reflected = reflect(direction, normal)
     normalize(reflected, out=reflected)
-    if not fuzz.any() and np.result_type(fuzz, u, reflected) == reflected.dtype:
+    if not fuzz.any() and np.result_type(fuzz, u.dtype, reflected) == reflected.dtype:
         # Perfect mirrors (gold in RTIOW's scenes): each jitter is a signed
         # zero, and adding one changes no number but a -0 (to +0, where the
         # zero is +0), so only rows with a zero component need theirs.
         scattered = reflected
         rows = true_rows((reflected == 0.0).any(axis=0))
         if rows.size:
-            jitter = gather(fuzz, rows) * random_unit_vector(u[0].take(rows), u[1].take(rows))
+            ur = _uniforms(u, rows)
+            jitter = gather(fuzz, rows) * random_unit_vector(ur[0], ur[1])
             scatter(scattered, rows, gather(reflected, rows) + jitter)
     else:
+        u = _uniforms(u)
         scattered = fuzz * random_unit_vector(u[0], u[1])
         if scattered.dtype == np.result_type(scattered, reflected):
             scattered += reflected  # reflected + jitter in the jitter's array (a sum commutes exactly)
