@@ -891,7 +891,31 @@ class _Workers:
 # Workers get their first task within 0.3 ms of starting and end within ~10 ms
 # of each other.  Tried and not kept: a 2 MiB socket send buffer, so a worker
 # never blocks handing over a result (~50 ms a worker on W1, mostly reducing
-# and pickling it, unchanged).
+# and pickling it, unchanged; tried again in session 12: the parent's reading
+# 22-70 ms of CPU with it against 22-49 without, on a loaded machine).
+# Session 12, W1 timed as the benchmark does (render_scene in a fresh process,
+# elapsed 1.59-1.68 s in 5 runs at load ~2): the parent forks the first worker
+# 4-6 ms after the start (compiling 0.9 ms; importing multiprocessing ~3 ms,
+# which a warm-up render, run inline, never does) and the second 1.5-4 ms
+# later; a worker's first bounce (its first 65,536 camera rays, first touches)
+# takes 10-55 ms of CPU.  While they run the parent uses 48-58 ms of CPU
+# (reading 38 results of ~0.8 MB, the first 6.6 MB, and 37 requests 20-25,
+# film.add 11-12, waiting 7-12); a worker hands over a task in ~1.4 ms of CPU
+# (reducing ~1.2, pickling ~0.25), the first task's 23-40 ms in 10 runs of 15,
+# and collects garbage once a render.  At the end each worker
+# drains 22-31 bounces (11-22 ms; the last ~15 of one or two paths), they exit
+# 2-15 ms apart, and the last exit is 5-7 ms before the return (joining the
+# workers 2-6 ms, malloc_trim 1.1).  Cores idle or used by the parent: 2 x
+# elapsed - the workers' CPU = 95-135 ms of ~3.3 s, so at most ~4 % of the
+# elapsed time is not a worker rendering: the rest of W1 is per-segment work.
+# Tried and not kept: closing a task once its units cover 65,536 pixels, so
+# the first task (67 units of the 1-spp passes, a 6.6 MB result against the
+# later tasks' 0.8 MB; ~13 MB of fresh memory reduced and pickled, 23-40 ms of
+# mostly kernel CPU in 10 runs of 15, 7-10 ms in the others) went out as
+# one-wavefront tasks of 1.5 MB (first hand-over 2.5-5.6 ms): both workers'
+# hand-overs over the render 75 ms against 80 (means of 8 interleaved runs,
+# medians 76 and 77; 40 tasks instead of 38), W1's CPU 0.989 of the tree
+# without it (median of 9, per-run 0.92-1.13): not measurable.
 def _run_pool(scene, cs, capacity, tasks, merge, stopped, workers) -> None:
     import multiprocessing  # here: a render of one task (or one worker) runs inline and never needs it
     from multiprocessing.connection import wait
