@@ -293,8 +293,9 @@ def test_survivors_moved_into_ended_rows_change_no_pixel(monkeypatch, name, over
 
 def test_fill_moves_the_last_paths_into_the_holes():
     """PathBatch.fill: every field of the paths kept, in the order fill
-    promises (each hole takes its mover); (3, N) fields contiguous (take
-    would copy a strided view whole before each gather)."""
+    promises (each hole takes its mover); (3, N) fields views of their
+    first columns (no copy), which gather reads row by row alike."""
+    from wavefront.vecmath import gather
     from wavefront.batch import PathBatch
     n = 10
     batch = PathBatch(origin=np.arange(3.0 * n).reshape(3, n), direction=np.arange(3.0 * n).reshape(3, n) + 100,
@@ -311,7 +312,10 @@ def test_fill_moves_the_last_paths_into_the_holes():
     assert len(got) == 7
     for name in ("origin", "direction", "throughput", "slot", "state", "depth", "bsdf_pdf", "specular", "eta_scale"):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
-    assert got.origin.flags.c_contiguous and got.throughput.flags.c_contiguous
+    assert not got.origin.flags.c_contiguous and got.origin.base is not None
+    idx = np.array([6, 0, 4, 4])
+    for name in ("origin", "direction", "throughput"):
+        np.testing.assert_array_equal(gather(getattr(got, name), idx), getattr(want, name).take(idx, axis=1))
     assert got.time is None and got.media_mask is None
 
 

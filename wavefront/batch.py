@@ -6,7 +6,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .vecmath import TAKE_MODE, true_rows
+from .vecmath import TAKE_MODE, gather, true_rows
 
 
 @dataclass(slots=True)
@@ -54,7 +54,7 @@ class PathBatch:
         # the field names and the method ``take`` (not ``np.take``, a Python
         # wrapper): a few microseconds of every call, a bounce's fixed cost
         # when only a handful of paths are left
-        return PathBatch(*[None if (a := getattr(self, name)) is None else a.take(idx, axis=-1, mode=TAKE_MODE)
+        return PathBatch(*[None if (a := getattr(self, name)) is None else gather(a, idx)
                            for name in _PATH_FIELDS])
 
     def fill(self, holes: np.ndarray, movers: np.ndarray, size: int) -> PathBatch:
@@ -65,11 +65,11 @@ class PathBatch:
         where :meth:`take` gathers every row (56 us against 324 for 32 Ki
         paths, 1.3 % ended).
 
-        A (N,) field becomes a view of its first ``size`` elements; a
-        (3, N) field a contiguous copy of its first ``size`` columns (100 us
-        of the three): ``take`` copies a non-contiguous array whole before
-        gathering from it (63 us against 39 for 26 Ki of 32 Ki columns, and
-        as much for the few columns of escaped paths).
+        Every field becomes a view of its first ``size`` columns (or
+        elements): a (3, N) field is then not contiguous, which
+        :func:`wavefront.vecmath.gather` (the next compaction's, and the
+        escaped paths') reads row by row; making it contiguous here copied
+        9 rows a bounce (100 us of 32 Ki paths).
         """
         for name in _PATH_FIELDS:
             a = getattr(self, name)
@@ -77,7 +77,7 @@ class PathBatch:
                 continue
             for row in (a if a.ndim == 2 else (a,)):  # a (3, N) field row by row: see vecmath.scatter
                 row[holes] = row.take(movers, mode=TAKE_MODE)
-            setattr(self, name, a[:size] if a.ndim == 1 else np.ascontiguousarray(a[:, :size]))
+            setattr(self, name, a[:size] if a.ndim == 1 else a[:, :size])
         return self
 
     @staticmethod

@@ -149,7 +149,15 @@ def gather(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     out-of-range index (a bug) goes unreported.  A negative index wraps
     through a loop: slow where many are (see ``KernelGroups``).
     """
-    return a.take(idx, axis=-1, mode=TAKE_MODE)
+    if a.ndim != 2 or a.flags.c_contiguous:
+        return a.take(idx, axis=-1, mode=TAKE_MODE)
+    # a (3, N) view of the first columns of a wider array (PathBatch.fill's):
+    # ``take`` would copy it whole before gathering; row by row, each row is
+    # contiguous and gathered where it lies
+    out = np.empty((a.shape[0], len(idx)), dtype=a.dtype)
+    for row, into in zip(a, out):
+        row.take(idx, mode=TAKE_MODE, out=into)
+    return out
 
 
 TAKE_MODE = "wrap"  # see gather
