@@ -1078,6 +1078,8 @@ class BVH:
         if cap is not None:
             np.fmin(to_beat, cap, out=to_beat)
         found = []
+        # one limit for every ray (a scalar t_max broadcast): compared as the scalar, no gather
+        limit_one = limit[0] if limit.ndim == 1 and limit.strides[0] == 0 else None
 
         k = self.child.size
         axes = len(self.walk_axes)
@@ -1158,7 +1160,9 @@ class BVH:
             with np.errstate(invalid="ignore"):  # NaN beyond reach (no candidate anyway), or inf - inf
                 far = np.sqrt(np.subtract(reach2, distance2, out=reach2), out=reach2)
             far += h
-            candidate &= ~(far < ray_floor.take(ray, mode="wrap"))  # not ">=": a NaN far root stays a candidate
+            # candidate and not (far < floor), one comparison of bools (True > False only);
+            # not ">=": a NaN far root stays a candidate
+            np.greater(candidate, far < ray_floor.take(ray, mode="wrap"), out=candidate)
             h -= reach
             candidate &= h <= to_beat.take(ray, mode="wrap")
             slot = candidate.ravel().nonzero()[0]  # j * P + pair for primitive j of pair's leaf
@@ -1224,7 +1228,8 @@ class BVH:
             t = self.primitives.t_pairs(prim, o.take(ray, axis=1, mode="wrap"), d.take(ray, axis=1, mode="wrap"),
                                         None if time is None else time.take(ray, mode="wrap"))
             # (t < limit is false for a miss, inf or NaN, whatever the limit)
-            ok = ((t < limit.take(ray, mode="wrap")) & (t <= nearest.take(ray, mode="wrap"))).nonzero()[0]
+            ok = ((t < (limit_one if limit_one is not None else limit.take(ray, mode="wrap")))
+                  & (t <= nearest.take(ray, mode="wrap"))).nonzero()[0]
             ray, t, prim = ray.take(ok, mode="wrap"), t.take(ok, mode="wrap"), prim.take(ok, mode="wrap")
             if any_hit:
                 to_beat[ray] = -np.inf  # done: no box is entered before 0
