@@ -272,3 +272,15 @@ def test_an_empty_output_path_is_named_as_empty(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "wavefront: error: the output path is empty; expected a file name ending in one of: .png, .exr, .npy"], r.stderr
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("path,problem", [
+    (" ", "the output path ' ' is blank"), ("\t", "the output path '\\t' is blank"),
+    ("./", "./: names a directory, not a file"), ("/", "/: names a directory, not a file"),
+    ("..", "..: names a directory, not a file")])
+def test_a_blank_or_directory_output_path_is_named_as_such(tmp_path, path, problem):
+    """``-o ' '``, ``-o ./``, ``-o /`` read "error:  : unknown output extension '(none)'"."""
+    r = run("render", SCENES / "three_spheres.yaml", "-o", path, cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"wavefront: error: {problem}; expected a file name ending in one of: .png, .exr, .npy"], r.stderr
+    assert not list(tmp_path.iterdir())

@@ -318,3 +318,32 @@ def test_an_integer_past_the_digit_limit_is_named_without_python_advice(text):
     message = str(e.value)
     assert message.startswith("big.yaml: spheres[0].radius: cannot read '9999") and "sys." not in message, message
     assert "an integer of 5,000 digits (at most 4,300 can be read)" in message, message
+
+
+_HUGE = "0x" + "f" * 5000  # 6,021 decimal digits: str() of it raises ValueError (the 4,300-digit limit)
+
+
+@pytest.mark.parametrize("old,new", [
+    ("samples_per_pixel: 100", "samples_per_pixel: " + _HUGE), ("seed: 1", "seed: " + _HUGE),
+    ("width: 400", "width: " + _HUGE), ("max_depth: 50", "max_depth: " + _HUGE), ("vfov: 20", "vfov: " + _HUGE),
+    ("radius: 0.5,", "radius: " + _HUGE + ","), ("albedo: [0.1,", "albedo: [" + _HUGE + ","),
+    ("seed: 1", "seed: 0o" + "7" * 7000)])
+def test_a_huge_integer_is_quoted_by_its_length(tmp_path, old, new):
+    """A message quoting it called str() on it: a traceback (exit 1)."""
+    with open("scenes/three_spheres.yaml") as f:
+        text = f.read()
+    assert old in text
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(text.replace(old, new, 1))
+    with pytest.raises(SceneError) as e:
+        load_scene(str(scene))
+    assert "integer of 6021 digits" in str(e.value) or "integer of 6322 digits" in str(e.value), str(e.value)
+
+
+def test_quote_counts_digits_exactly():
+    from wavefront.validation import quote
+
+    for k in (36, 40, 41, 42, 4300, 4301):
+        for value, digits in ((10 ** k - 1, k), (10 ** k, k + 1), (-(10 ** k), k + 1)):
+            expected = repr(value) if digits <= 40 else f"{'a negative' if value < 0 else 'an'} integer of {digits} digits"
+            assert quote(value) == expected

@@ -69,6 +69,25 @@ def warn(obj, path: str, problem: str) -> None:
     warnings.warn(warning, stacklevel=4)
 
 
+_QUOTED_DIGITS = 40  # an integer of more digits is quoted by its length: str() refuses past 4,300
+
+
+def quote(value) -> str:
+    """``repr(value)``, but an integer of more than 40 digits as ``an integer
+    of N digits``: YAML reads ``0x`` and 5,000 hex digits as an int whose str()
+    raises ValueError (Python's 4,300-digit limit), a traceback in a message."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)):
+        value = int(value)
+        if value.bit_length() > 3 * _QUOTED_DIGITS:  # > 36 digits: counted without str()
+            size = abs(value)
+            digits = int((value.bit_length() - 1) * 0.30102999566398120) + 1
+            digits += size >= 10 ** digits
+            digits -= size < 10 ** (digits - 1)
+            if digits > _QUOTED_DIGITS:
+                return f"{'a negative' if value < 0 else 'an'} integer of {digits} digits"
+    return repr(value)
+
+
 def describe(value) -> str:
     """``string 'x'``, ``a list of 2 items``: what a wrong value was, briefly."""
     if value is None:
@@ -79,7 +98,9 @@ def describe(value) -> str:
             list: "list", tuple: "list", dict: "mapping"}.get(type(value), type(value).__name__)
     if isinstance(value, (list, tuple, dict)):
         return f"a {kind} of {len(value)} item{'s' if len(value) != 1 else ''}"
-    text = repr(value)
+    text = quote(value)
+    if text.endswith(" digits"):
+        return text
     return f"{kind} {text[:40] + '...' if len(text) > 40 else text}"
 
 
@@ -113,11 +134,11 @@ def number(obj, value, path: str, *, low=None, low_open=False, high=None, high_o
     except OverflowError:  # an integer beyond float64
         x = math.inf if value > 0 else -math.inf
     if not math.isfinite(x):
-        fail(obj, path, f"must be finite, got {value!r}")
+        fail(obj, path, f"must be finite, got {quote(value)}")
     if low is not None and (x <= low if low_open else x < low):
-        fail(obj, path, f"must be {'>' if low_open else '>='} {low}, got {value!r}")
+        fail(obj, path, f"must be {'>' if low_open else '>='} {low}, got {quote(value)}")
     if high is not None and (x >= high if high_open else x > high):
-        fail(obj, path, f"must be {'<' if high_open else '<='} {high}, got {value!r}")
+        fail(obj, path, f"must be {'<' if high_open else '<='} {high}, got {quote(value)}")
     return x
 
 
@@ -130,9 +151,9 @@ def integer(obj, value, path: str, *, low=None, high=None) -> int:
     else:
         fail(obj, path, f"expected an integer, got {describe(value)}")
     if low is not None and value < low:
-        fail(obj, path, f"must be >= {low}, got {value}")
+        fail(obj, path, f"must be >= {low}, got {quote(value)}")
     if high is not None and value > high:
-        fail(obj, path, f"must be <= {high}, got {value}")
+        fail(obj, path, f"must be <= {high}, got {quote(value)}")
     return value
 
 

@@ -188,14 +188,17 @@ def _ply_header(data: bytes, max_faces: int) -> tuple[dict, bool, bool, int] | N
             if len(words) != 3:
                 return None
             name, text = words[1], words[2]
-            line = data.count(b"\n", 0, start) + 1
-            where = f"the PLY header's count {text!r} of element {name!r} (line {line})"
+            # the line number only when refusing: counted for every element line, 150,000
+            # empty elements took 112 s (quadratic)
+            def where() -> str:
+                line = data.count(b"\n", 0, start) + 1
+                return f"the PLY header's count {text!r} of element {name!r} (line {line})"
             try:
                 count = int(text)
             except ValueError:
-                raise MeshError(f"{where} is not a whole number") from None
+                raise MeshError(f"{where()} is not a whole number") from None
             if count < 0:
-                raise MeshError(f"{where} is negative")
+                raise MeshError(f"{where()} is negative")
             if count > 3 * max_faces:
                 raise MeshError(f"declares {count} {name} elements; the limit is {3 * max_faces}")
             elements[name] = (count, {})
@@ -232,6 +235,11 @@ def _ply_triangle_bound(data: bytes, max_faces: int) -> int:
     every face), so the bound is exact: the faces the body holds times n - 2.
     An ASCII file's face lines are read one by one (:func:`_line_polygons`),
     the values before the index list (a flag, a uv list) stepped over."""
+    end = _ply_header_end(data)
+    if end is not None and not data[:end].isascii():
+        # trimesh is given the header decoded whole (Latin-1 if any line is not UTF-8): a line
+        # 'end_header\xc2\xa0' then ends nothing; read line by line it ended the header (0 of 399,600)
+        data = _text_as_utf8(data, "ply")
     header = _ply_header(data, max_faces)
     if header is None:
         return 0
@@ -747,11 +755,18 @@ def _obj_triangle_bound(data: bytes) -> int:
     has the same number of values per word (``1 2 3`` or ``1/1/1 2/2/2 ...``
     throughout, as exporters write), and otherwise each line counts at least
     the smaller of its values and the most words a face line has."""
+    # as trimesh gets it: a Latin-1 file's bare 0xA0 and 0x85 bytes are NBSP and NEL, which
+    # str.split() splits at (read as bytes, 2 of 2001 triangles counted); no copy for ASCII
+    data = _text_as_utf8(data, "obj")
     if b"\\\n" in data or b"\\\r\n" in data:  # a copy, only for such a file
         data = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
     data = _split_as_str(data, blanks=True)
-    total, regular, most = _obj_face_triangles(data)
-    return total if regular else _obj_face_triangles(data, most)[0]
+    # trimesh strips the text first: its first line starts at the first byte kept (' f 1 2 3 4 5'
+    # first in the file is a face: counted from byte 0, 0 of 3 triangles)
+    content = _CONTENT.search(data)
+    begin = content.start() if content else len(data)
+    total, regular, most = _obj_face_triangles(data, begin=begin)
+    return total if regular else _obj_face_triangles(data, most, begin=begin)[0]
 
 
 # Bytes that part an OBJ face's words (str.split's whitespace once _split_as_str has made the
@@ -762,20 +777,21 @@ _OBJ_VALUE_END = _OBJ_WORD_END.copy()
 _OBJ_VALUE_END[ord("/")] = True
 
 
-def _obj_face_triangles(data: bytes, most: int | None = None) -> tuple[int, bool, int]:
+def _obj_face_triangles(data: bytes, most: int | None = None, *, begin: int = 0) -> tuple[int, bool, int]:
     """Triangles of the face lines of ``data`` (see :func:`_obj_triangle_bound`):
     ``(total, regular, most words of a line)``, ``regular`` when every face
     line has as many values per word as the first.  Without ``most`` each
-    line counts max(words - 2, 0); with it, max(words, min(values, most)) - 2."""
+    line counts max(words - 2, 0); with it, max(words, min(values, most)) - 2.
+    The first line starts at ``begin`` (the text's first byte str.strip() keeps)."""
     a = np.frombuffer(data, dtype=np.uint8)
     n = a.size
     total, per_word, regular, most_words = 0, None, True, 0
-    chunk_start = 0
+    chunk_start = begin
     while chunk_start < n:
         chunk_end = min(chunk_start + _LINE_CHUNK, n)
         starts = np.flatnonzero(a[max(chunk_start - 1, 0):chunk_end - 1] == ord("\n")) + max(chunk_start - 1, 0) + 1
-        if chunk_start == 0:
-            starts = np.concatenate(([0], starts))
+        if chunk_start == begin and not (starts.size and starts[0] == begin):
+            starts = np.concatenate(([begin], starts))
         chunk_start = chunk_end
         starts = starts[a[np.minimum(starts, n - 1)] == ord("f")] if starts.size else starts
         starts = starts[starts < n]
@@ -1186,7 +1202,7 @@ def _text_as_utf8(data: bytes, ext: str) -> bytes:
         return data if binary else utf8(data)
     if ext == "ply":
         end = _ply_header_end(data)
-        if end is not None:
+        if end is not None and not data[:end].isascii():  # no copy of the file for an ASCII header
             return utf8(data[:end]) + data[end:]
     return data
 
