@@ -412,7 +412,7 @@ def test_shared_coordinates_key_as_full_blocks(dtype, shared):
     np.testing.assert_array_equal(spheres.key_block(1, 4, origin, direction), whole[1:4])
     assert 0.1 < (key_root(whole.min(axis=0)) < np.inf).mean() < 0.95  # rays that hit and rays that miss
     part = spheres.subset(np.array([0, 5]))
-    part.center[:, 1] += 1.0  # apart on every axis: nothing shared any more
+    part.center = part.center + np.array([[0.0, 1.0]])  # apart on every axis: nothing shared any more (a new array: sets are read-only)
     assert part.subset(np.arange(2)).shared_axes == ()
 
 

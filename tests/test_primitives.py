@@ -346,3 +346,16 @@ def test_a_nan_limit_admits_no_hit_across_blocks(scalar):
         assert np.allclose(hits.t[~nan_rows], 10.75)
     tree = BVH(prims)
     assert (tree.intersect(origin, direction, t_max).primitive_idx == hits.primitive_idx).all()
+
+
+def test_sphere_sets_and_their_subsets_are_read_only():
+    """A set's shared axes, anchors and cached key plans are derived from its
+    centres and radii once: writing a centre in place after a query kept the
+    old hits (session 12's review), in a subset (the BVH's outsized set) too."""
+    from wavefront.shapes.sphere import SphereSet
+    center = np.array([[0.0, 1.0, 2.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
+    spheres = SphereSet(center, np.array([0.5, 0.5, 2000.0]), np.zeros(3, dtype=np.int32), np.float32)
+    for s in (spheres, spheres.subset(np.array([1, 2]))):
+        for field in (s.center, s.radius, s.radius_squared):
+            with pytest.raises(ValueError):
+                field[..., 0] = 5.0

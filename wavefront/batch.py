@@ -51,9 +51,9 @@ class PathBatch:
         """
         if idx.dtype == bool:
             idx = true_rows(idx)
-        # the field names and the method ``take`` (not ``np.take``, a Python
-        # wrapper): a few microseconds of every call, a bounce's fixed cost
-        # when only a handful of paths are left
+        # the field names and ``gather`` (the method ``take``, not ``np.take``'s
+        # Python wrapper, or (3, N) views row by row): a few microseconds of
+        # every call, a bounce's fixed cost when only a handful of paths are left
         return PathBatch(*[None if (a := getattr(self, name)) is None else gather(a, idx)
                            for name in _PATH_FIELDS])
 

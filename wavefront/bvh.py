@@ -116,6 +116,7 @@ import numpy as np
 
 from .geometry import FLOAT32_EXTENT, T_MIN, escaped_at_inf
 from .shapes import Hits, Primitives
+from .vecmath import gather
 
 LEAF_SIZE = 4
 # Trees over more primitives than BIG_TREE get leaves of BIG_LEAF_SIZE, one
@@ -1225,7 +1226,7 @@ class BVH:
                     row = row.take(near_plane, mode="wrap")
                 prim = self.leaf_primitive.take(row, mode="wrap")
             ray = ray.take(pair, mode="wrap")
-            t = self.primitives.t_pairs(prim, o.take(ray, axis=1, mode="wrap"), d.take(ray, axis=1, mode="wrap"),
+            t = self.primitives.t_pairs(prim, gather(o, ray), gather(d, ray),
                                         None if time is None else time.take(ray, mode="wrap"))
             # (t < limit is false for a miss, inf or NaN, whatever the limit)
             ok = ((t < (limit_one if limit_one is not None else limit.take(ray, mode="wrap")))

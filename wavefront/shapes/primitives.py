@@ -305,7 +305,7 @@ class Primitives:
                     continue
                 if best_t is None:
                     best_t, best_idx = nothing_hit()
-                t = kind.t_pairs(start + j, origin.take(ray, axis=1), direction.take(ray, axis=1),
+                t = kind.t_pairs(start + j, gather(origin, ray), gather(direction, ray),
                                  None if time is None else time.take(ray))
                 # strict, as below: an earlier block keeps a tie
                 keep = true_rows(t < best_t.take(ray))
@@ -391,7 +391,7 @@ class Primitives:
                 ray, j = slab.pairs(start, stop, rays32, ray_major=False)
                 if ray.size == 0:
                     continue
-                t = kind.t_pairs(start + j, o.take(ray, axis=1), d.take(ray, axis=1),
+                t = kind.t_pairs(start + j, gather(o, ray), gather(d, ray),
                                  None if tm is None else tm.take(ray))
                 hit = np.zeros(live.size, dtype=bool)
                 hit[ray[t < lim.take(ray)]] = True  # NaN compares false
@@ -419,8 +419,8 @@ class Primitives:
         for k, shapes in enumerate(self.kinds):
             sel = true_rows(kind == k)
             if sel.size:
-                t[sel] = shapes.t_pairs(idx.take(sel) - self.offsets[k], origin.take(sel, axis=1),
-                                        direction.take(sel, axis=1), None if time is None else time.take(sel))
+                t[sel] = shapes.t_pairs(idx.take(sel) - self.offsets[k], gather(origin, sel),
+                                        gather(direction, sel), None if time is None else time.take(sel))
         return t
 
     def surface(self, origin, direction, t, idx, uv: bool = False, time=None) -> SurfaceHits:
@@ -446,8 +446,8 @@ class Primitives:
                 sel = true_rows(kind == k)
                 if sel.size == 0:
                     continue
-                p, g, s, c = shapes.surface(idx.take(sel) - self.offsets[k], origin.take(sel, axis=1),
-                                            direction.take(sel, axis=1), t.take(sel), uv,
+                p, g, s, c = shapes.surface(idx.take(sel) - self.offsets[k], gather(origin, sel),
+                                            gather(direction, sel), t.take(sel), uv,
                                             None if time is None else time.take(sel))
                 point[:, sel], outward[:, sel], shading[:, sel] = p, g, s
                 if uv:

@@ -148,9 +148,13 @@ class SphereSet(ShapeKind):
             self.velocity = np.ascontiguousarray(end.astype(dtype) - self.center)
         self.shared_axes = self._shared_axes()
         self._plans = {}  # (start, stop): the fields of a block's plain spheres (see _key_plan)
-        # shared_axes, anchor, the antipodes and the plans are derived from
-        # these once: writing to them in place would leave those stale, so
-        # they are read-only (a changed set is a new SphereSet).
+        self._freeze()
+
+    def _freeze(self) -> None:
+        """shared_axes, anchor, the antipodes and the plans are derived from
+        the centres and radii once: writing to them in place would leave those
+        stale, so they are read-only (a changed set is a new SphereSet), in a
+        subset too."""
         for field in (self.center, self.radius, self.radius_squared):
             field.flags.writeable = False
 
@@ -176,6 +180,7 @@ class SphereSet(ShapeKind):
         part.shared_axes = part._shared_axes()
         part.anchored = bool(part.anchor.any())
         part._plans = {}
+        part._freeze()
         return part
 
     def _key_plan(self, start, stop):
