@@ -259,3 +259,20 @@ def test_shape_objects_accept_what_files_accept():
     s = scene(quads=box.quads(), triangles=[Triangle(((0, 0, -2), (1, 0, -2), (0, 1, -2)), "ball")],
               meshes=[Mesh(np.eye(3) - 2, np.array([[0, 1, 2]]), "ball")])
     assert len(s.quads) == 6 and np.isfinite(render(s, workers=1)).all()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_background_radiance_at_rows_is_radiance_of_those_rows(dtype):
+    """The escaped rows' colour from the y row alone (Sky.radiance_at) is
+    radiance of the gathered directions, bit for bit, on a (3, N) view too."""
+    from wavefront.background import Sky, Solid
+    rng = np.random.default_rng(3)
+    wide = rng.normal(size=(3, 500)).astype(dtype)
+    wide /= np.sqrt((wide * wide).sum(axis=0))
+    direction = wide[:, :400]  # PathBatch.fill's views
+    rows = rng.permutation(400)[:123]
+    for background in (Sky(), Sky((0.2, 0.1, 0.05), (1.0, 0.3, 0.9)), Solid((0.3, 0.2, 0.1))):
+        got = background.radiance_at(direction, rows)
+        want = background.radiance(direction[:, rows])
+        assert got.dtype == want.dtype == dtype and got.shape == want.shape == (3, 123)
+        np.testing.assert_array_equal(np.ascontiguousarray(got).view(np.uint8), np.ascontiguousarray(want).view(np.uint8))

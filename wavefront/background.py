@@ -8,6 +8,7 @@ from typing import ClassVar
 import numpy as np
 
 from .validation import color
+from .vecmath import gather
 
 RGB = tuple[float, float, float]
 
@@ -34,10 +35,27 @@ class Sky:
 
     def radiance(self, direction: np.ndarray) -> np.ndarray:
         """Colour seen along unit ``direction`` (3, N); returns (3, N)."""
-        a = 0.5 * (direction[1] + 1.0)
-        bottom = np.asarray(self.bottom, dtype=direction.dtype)[:, None]
-        top = np.asarray(self.top, dtype=direction.dtype)[:, None]
-        return bottom + a * (top - bottom)
+        return self._lerp(direction[1] + 1.0)
+
+    def radiance_at(self, direction: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """:meth:`radiance` of columns ``rows`` (indices) of ``direction``,
+        from their y alone: only that row is gathered (W1's bounces lose 1-55 Ki
+        of their paths to the sky; a bounce of 55 Ki escapes 157 us against 226
+        gathering the three rows)."""
+        y1 = gather(direction[1], rows)
+        y1 += 1.0
+        return self._lerp(y1)
+
+    def _lerp(self, a: np.ndarray) -> np.ndarray:
+        """``bottom + 0.5 a (top - bottom)`` for ``a = y + 1`` (R,), a
+        temporary taken over: each product and sum in place, in the order
+        ``0.5 * (y + 1)`` then ``bottom + a * (top - bottom)`` (a sum and a
+        product commute exactly)."""
+        a *= 0.5
+        bottom = np.asarray(self.bottom, dtype=a.dtype)[:, None]
+        light = np.multiply(np.asarray(self.top, dtype=a.dtype)[:, None] - bottom, a)
+        light += bottom
+        return light
 
 
 @dataclass(frozen=True)
@@ -59,6 +77,10 @@ class Solid:
 
     def radiance(self, direction: np.ndarray) -> np.ndarray:
         return np.broadcast_to(np.asarray(self.color, dtype=direction.dtype)[:, None], direction.shape)
+
+    def radiance_at(self, direction: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """:meth:`radiance` of columns ``rows`` of ``direction``."""
+        return np.broadcast_to(np.asarray(self.color, dtype=direction.dtype)[:, None], (3, len(rows)))
 
 
 Background = Sky | Solid

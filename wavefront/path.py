@@ -59,7 +59,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .background import Sky
 from .batch import PathBatch, ShadowBatch
 from .units import Job
 from .materials import LazyUniforms, lambertian_pdf, scatter_dielectric, scatter_lambertian, scatter_metal
@@ -663,7 +662,7 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGr
     gone = runs = None
     if esc_idx.size:
         seen = gather(live.throughput, esc_idx)
-        light = background_light(cs.scene.background, live.direction, esc_idx)
+        light = cs.scene.background.radiance_at(live.direction, esc_idx)
         if seen.dtype == np.result_type(seen, light):
             seen *= light  # throughput * background in the gathered array
         else:
@@ -693,27 +692,6 @@ def escaped(cs: CompiledScene, live: PathBatch, hits, radiance, groups: KernelGr
         if surface.uv is not None:
             surface.uv[:, esc_idx] = 0
     return live, surface, gone, runs
-
-
-def background_light(background, direction, rows) -> np.ndarray:
-    """The background's colour ``(3, R)`` along the unit directions of rows
-    ``rows`` (indices into ``direction`` (3, N)).
-
-    The sky's colour reads a direction's y alone: only that row is gathered
-    (W1's captured bounces lose 1-55 Ki of their paths to the sky), then the
-    same operations as :meth:`Sky.radiance` in the same order, each product
-    and sum in place where it commutes exactly: ``a = 0.5 * (y + 1)``,
-    ``bottom + a * (top - bottom)``.  A captured W1 bounce of 55 Ki
-    escapes: 157 us against 226 with the throughput's gather and product."""
-    if type(background) is not Sky:
-        return background.radiance(gather(direction, rows))
-    a = direction[1].take(rows, mode=TAKE_MODE)
-    a += 1.0
-    a *= 0.5
-    bottom = np.asarray(background.bottom, dtype=direction.dtype)[:, None]
-    light = np.multiply(np.asarray(background.top, dtype=direction.dtype)[:, None] - bottom, a)
-    light += bottom
-    return light
 
 
 @dataclass(slots=True)
