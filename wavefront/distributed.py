@@ -98,13 +98,13 @@ def local_worker_count(scheduler: str, memory: int | None = None) -> int:
         need = n * LOCAL_WORKER_BYTES + LOCAL_CLUSTER_BYTES
         if held + need > memory:
             fits = max(0, (memory - held - LOCAL_CLUSTER_BYTES) // LOCAL_WORKER_BYTES)
+            total, budget = over_budget(held + need, memory)
             raise SchedulerError(
                 f"{scheduler}: {n} local worker{'s' if n > 1 else ''} need{'' if n > 1 else 's'} at least "
                 f"{LOCAL_WORKER_BYTES // MiB} MiB{' each' if n > 1 else ''} and the cluster "
                 f"{LOCAL_CLUSTER_BYTES // MiB} MiB beside the {held / MiB:,.0f} MiB this process holds"
                 f"{' with Dask imported' if importing else ''}: "
-                f"{over_budget(held + need, memory)[0]} in all, more than the memory budget of "
-                f"{over_budget(held + need, memory)[1]} "
+                f"{total} in all, more than the memory budget of {budget} "
                 "(--memory); " + (f"at most local:{fits}" if fits else "a local cluster does not fit in it"))
     return n
 

@@ -56,14 +56,13 @@ class OutputError(ValueError):
 
 
 def output_format(path: str) -> str:
+    expected = f"expected a file name ending in one of: {', '.join(FORMATS)}"
     if not path:  # "-o ''" read ": unknown output extension '(none)'", naming no path
-        raise OutputError(f"the output path is empty; expected a file name ending in one of: {', '.join(FORMATS)}")
+        raise OutputError(f"the output path is empty; {expected}")
     if not path.strip():  # "-o ' '" read " : unknown output extension '(none)'"
-        raise OutputError(f"the output path {path!r} is blank; expected a file name ending in one of: "
-                          f"{', '.join(FORMATS)}")
+        raise OutputError(f"the output path {path!r} is blank; {expected}")
     if os.path.basename(path) in ("", ".", ".."):  # "-o ./", "-o /": a directory, not a file
-        raise OutputError(f"{path}: names a directory, not a file; expected a file name ending in one of: "
-                          f"{', '.join(FORMATS)}")
+        raise OutputError(f"{path}: names a directory, not a file; {expected}")
     ext = os.path.splitext(path)[1].lower()
     if not ext and os.path.basename(path).startswith("."):
         raise OutputError(f"{path}: has no extension (a name starting with a dot is a hidden file's name); "

@@ -528,22 +528,12 @@ def _line_polygons(data: bytes, start: int, skip: int, count: int, *, blank_line
         total += int(np.maximum(np.minimum(value, room) - 2, 0).sum())
         if first_applies:
             if first is None:
-                first, width = int(value[0]), int(_value_counts(a, lead[:1], ends[:1])[0])
+                first, width = int(value[0]), int(_counts_between(a, lead[:1], ends[:1], _SEPARATOR)[0])
             if same_width and (value != first).any():  # else both ways count the same: no need to know
-                same_width = bool((_value_counts(a, lead, ends) == width).all())
+                same_width = bool((_counts_between(a, lead, ends, _SEPARATOR) == width).all())
             if same_width:
                 as_first += int(np.maximum(np.minimum(np.maximum(value, first), room) - 2, 0).sum())
     return as_first if first_applies and same_width else total
-
-
-def _value_counts(a: np.ndarray, lead: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """The number of values (words) of each line from ``lead`` to ``ends``."""
-    low, high = int(lead[0]), int(ends[-1])
-    separator = _SEPARATOR[a[low:high]]
-    first = ~separator
-    first[1:] &= separator[:-1]
-    values = np.flatnonzero(first) + low
-    return np.searchsorted(values, ends) - np.searchsorted(values, lead)
 
 
 _UNREAD = np.int64(1) << 62  # a count not read: the line lists all it can
@@ -819,7 +809,9 @@ def _obj_face_triangles(data: bytes, most: int | None = None, *, begin: int = 0)
 
 def _counts_between(a: np.ndarray, lead: np.ndarray, ends: np.ndarray, end_table: np.ndarray) -> np.ndarray:
     """The number of runs of bytes not in ``end_table`` on each line from
-    ``lead`` to ``ends`` (sorted, apart), one starting at ``lead`` itself too."""
+    ``lead`` to ``ends`` (sorted, apart), one starting at ``lead`` itself too:
+    an OBJ face's words and values, a PLY or OFF line's values (``_SEPARATOR``;
+    there each ``lead`` is a line's first byte other than a blank)."""
     low, high = int(lead[0]), int(ends[-1])
     if high <= low:
         return np.zeros(lead.size, dtype=np.int64)
