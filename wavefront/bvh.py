@@ -937,15 +937,7 @@ class BVH:
         first = self.outsized_set._intersect(origin, direction, t_max, time, escaped_inf=False) \
             if len(self.outsized) else None
         best_t = limit.copy() if first is None else np.minimum(first.t, limit)
-        far = self._far_rays(origin)
-        found = self._traverse(origin, direction, limit, best_t, time=time, skip=far)  # lowers best_t to the tree's hits
-        if far is not None:  # the far rays through the tables padded for them (see NEAR_EXTENT)
-            far = far.nonzero()[0]
-            far_t = best_t.take(far)
-            far_found = self.far._traverse(origin.take(far, axis=1), direction.take(far, axis=1), limit.take(far),
-                                           far_t, time=None if time is None else time.take(far))
-            best_t[far] = far_t
-            found += [(far.take(ray), t, prim) for ray, t, prim in far_found]
+        found = self._walk(origin, direction, limit, best_t, time=time)  # lowers best_t to the tree's hits
         # int32 throughout, what Hits holds (every scene-wide index fits): no final cast, and
         # the sentinel's correction in int32 (~5 us a batch of 8,192 rays against ~10)
         none = np.int32(len(self.primitives))  # sentinel above every index, so np.minimum keeps real ones
@@ -976,17 +968,25 @@ class BVH:
             o, d = origin.take(rest, axis=1, mode="wrap"), direction.take(rest, axis=1, mode="wrap")
             lim = limit.take(rest, mode="wrap")
             t = None if time is None else time.take(rest, mode="wrap")
-            far = self._far_rays(o)
-            found = self._traverse(o, d, lim, lim.copy(), any_hit=True, time=t, skip=far)
-            if far is not None:  # see _intersect
-                far = far.nonzero()[0]
-                far_lim = lim.take(far)
-                far_found = self.far._traverse(o.take(far, axis=1), d.take(far, axis=1), far_lim, far_lim.copy(),
-                                               any_hit=True, time=None if t is None else t.take(far))
-                found += [(far.take(ray),) for ray, *_ in far_found]
+            found = self._walk(o, d, lim, lim.copy(), any_hit=True, time=t)
             if found:
                 blocked[rest.take(np.concatenate([f[0] for f in found]), mode="wrap")] = True
         return blocked
+
+    def _walk(self, origin, direction, limit, best_t, any_hit: bool = False, time=None) -> list:
+        """:meth:`_traverse` over both sets of tables: the near rays through
+        this tree's, the far ones (see NEAR_EXTENT) through ``self.far``'s,
+        ``best_t`` lowered for both; what they found, numbered by this call's rays."""
+        far = self._far_rays(origin)
+        found = self._traverse(origin, direction, limit, best_t, any_hit=any_hit, time=time, skip=far)
+        if far is not None:
+            far = far.nonzero()[0]
+            far_t = best_t.take(far)
+            far_found = self.far._traverse(gather(origin, far), gather(direction, far), limit.take(far), far_t,
+                                           any_hit=any_hit, time=None if time is None else time.take(far))
+            best_t[far] = far_t
+            found += [(far.take(ray), *rest) for ray, *rest in far_found]
+        return found
 
     def _far_rays(self, origin) -> np.ndarray | None:
         """Which rays start beyond NEAR_EXTENT / 2 on some axis (bool (N,)), or None if none
